@@ -1,0 +1,1 @@
+"""Shared tsrrt library code: task-space regions, geometry, scenarios and configuration."""
