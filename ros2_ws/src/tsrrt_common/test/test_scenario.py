@@ -1,4 +1,4 @@
-"""Scenario files: the shipped ones load, and malformed ones fail naming file, field and problem."""
+"""Scenario files: shipped ones load; malformed ones fail naming file, field and problem."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
-"""The overhead camera: one pinhole model that the simulator renders with and perception inverts.
+"""The overhead camera: one pinhole model the simulator renders with and perception inverts.
 
-Frames: the camera's optical frame follows ROS (z forward, x right, y down). It looks straight down,
-with image right along world -y and image down along world -x, so the robot base is at the bottom of
-the image. Pixel coordinates follow OpenCV: the centre of pixel (u, v) is at (u, v).
+Frames: the camera's optical frame follows ROS (z forward, x right, y down). It looks straight
+down, with image right along world -y and image down along world -x, so the robot base is at
+the bottom of the image. Pixel coordinates follow OpenCV: the centre of pixel (u, v) is at (u, v).
 """
 
 from __future__ import annotations

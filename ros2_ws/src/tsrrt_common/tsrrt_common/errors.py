@@ -1,4 +1,4 @@
-"""One exception hierarchy for tsrrt, so callers can catch everything the library raises on bad input."""
+"""One exception hierarchy, so callers can catch everything tsrrt raises on bad input."""
 
 
 class TsrrtError(Exception):

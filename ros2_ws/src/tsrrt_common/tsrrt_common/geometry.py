@@ -37,7 +37,7 @@ def angle_difference_modulo_symmetry(a: float, b: float, symmetry: int) -> float
 
 @dataclass(frozen=True)
 class Pose2D:
-    """Pose of an object frame in the table (world) frame: T_world_object restricted to the plane."""
+    """Pose of an object frame in the table (world) frame: T_world_object in the plane."""
 
     x: float
     y: float

@@ -56,7 +56,8 @@ def _parse_class(name: str, entry: Any, source: str) -> ObjectClass:
         tolerance = float(entry["tolerance"])
         symmetry = int(entry["symmetry"])
     except (TypeError, ValueError) as error:
-        raise ClassTableError(f"{where}: non-numeric size, tolerance or symmetry ({error})") from None
+        raise ClassTableError(
+            f"{where}: non-numeric size, tolerance or symmetry ({error})") from None
     if not all(math.isfinite(v) and v > 0 for v in [*size, tolerance]):
         raise ClassTableError(f"{where}: sizes and tolerance must be finite and positive")
     if shape == "box":

@@ -1,4 +1,4 @@
-"""The Panda with the paper's ball end-effector: one URDF that the simulator and Pinocchio both load.
+"""The Panda with the paper's ball end-effector: one URDF the simulator and Pinocchio load.
 
 The description comes from example-robot-data (pip's cmeel prefix or an apt install's share dir).
 The fingers are replaced by a short rod with a ball at its tip, as on the paper's arm, and the mesh

@@ -29,7 +29,7 @@ OBJECTIVE_TERM_PARAMS: dict[str, frozenset[str]] = {
     "spread": frozenset(),                       # Eq. 1
     "distance_to_point": frozenset({"point"}),   # Eq. 2 (point: [x, y] or "table_center", Eq. 5)
     "orthogonality": frozenset(),                # Eq. 3
-    "table_bounds": frozenset({"margin"}),       # Eq. 4 as a soft penalty (the hard bound always holds)
+    "table_bounds": frozenset({"margin"}),       # Eq. 4 as a soft penalty; the hard bound holds
     "cluster_by_class": frozenset(),             # future work in the paper: group alike objects
     "keep_clear": frozenset({"region"}),         # stay out of a rectangle [xmin, ymin, xmax, ymax]
     "align": frozenset(),                        # objects share one heading modulo pi/2
@@ -172,7 +172,8 @@ def _parse_object(reader: _Reader, raw: Any, where: str, classes: dict[str, Obje
     object_id = reader.text(reader.require(entry, "id", where), f"{where}.id")
     class_name = reader.text(reader.require(entry, "class", where), f"{where}.class")
     if class_name not in classes:
-        raise reader.fail(f"{where}.class", f"unknown class {class_name!r}; known: {sorted(classes)}")
+        raise reader.fail(f"{where}.class",
+                          f"unknown class {class_name!r}; known: {sorted(classes)}")
     cls = classes[class_name]
     length, width, height = cls.length, cls.width, cls.height
     if "size" in entry:
@@ -306,7 +307,8 @@ def _select_objects(reader: _Reader, raw: Any, where: str, ids: list[str], class
                 raise reader.fail(f"{where}.ids", "expected a list of object ids")
             for object_id in wanted:
                 if object_id not in ids:
-                    raise reader.fail(f"{where}.ids", f"unknown object {object_id!r}; known: {ids}")
+                    raise reader.fail(f"{where}.ids",
+                                      f"unknown object {object_id!r}; known: {ids}")
             selected = tuple(wanted)
     if not selected:
         raise reader.fail(where, "the term applies to no object")

@@ -1,0 +1,1 @@
+"""Task executor: learns forward models, requests plans and executes primitives."""

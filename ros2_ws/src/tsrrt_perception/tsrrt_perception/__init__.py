@@ -1,0 +1,1 @@
+"""Object pose estimation from simulated camera images."""

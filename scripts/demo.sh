@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Demo: sets up the workspace, then renders a snapshot of a scenario.
+# Usage: scripts/demo.sh [--scenario NAME|PATH] [--out DIR] [extra args for tsrrt_sim.snapshot]
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+scenario="clean"
+out="${OUT:-out/demo}"
+extra=()
+while (($#)); do
+  case "$1" in
+    --scenario) [[ $# -ge 2 ]] || { echo "demo: --scenario needs a value" >&2; exit 2; }
+      scenario="$2"; shift 2 ;;
+    --scenario=*) scenario="${1#*=}"; shift ;;
+    --out) [[ $# -ge 2 ]] || { echo "demo: --out needs a value" >&2; exit 2; }
+      out="$2"; shift 2 ;;
+    --out=*) out="${1#*=}"; shift ;;
+    -h|--help) sed -n '2,3s/^# \{0,1\}//p' "$0"; exit 0 ;;
+    *) extra+=("$1"); shift ;;
+  esac
+done
+
+TSRRT_SETUP_QUIET=1 bash "$ROOT/scripts/setup.sh"
+# shellcheck source=scripts/env.sh
+source "$ROOT/scripts/env.sh"
+# Relative paths are taken from the caller's directory, as the user typed them.
+exec python -m tsrrt_sim.snapshot --scenario "$scenario" --out "$out" ${extra[@]+"${extra[@]}"}
