@@ -1,0 +1,348 @@
+"""ROS 2 node: overhead camera (colour + depth + CameraInfo) -> object states and markers.
+
+Thin: image fields go through image_conversion, frames through segmentation and tracking; this
+module only pairs messages, reads parameters and fills messages. Colour and depth are paired by
+exact stamp (message_filters is not available from PyPI). Object states are republished at a fixed
+wall-clock rate even when frames come slower, with statuses aged accordingly.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
+from geometry_msgs.msg import Point
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.time import Time
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from tsrrt_common.errors import TsrrtError
+from tsrrt_common.geometry import footprint_polygon
+from tsrrt_common.object_classes import load_class_table
+from tsrrt_common.scenario import load_scenario
+from tsrrt_interfaces.msg import ObjectState, ObjectStateArray
+from tsrrt_interfaces.srv import GetSettledObjects
+from tsrrt_perception.camera_view import OVERHEAD_ORIENTATION_XYZW, CameraView
+from tsrrt_perception.image_conversion import image_to_array
+from tsrrt_perception.segmentation import SegmentationParams, segment_objects
+from tsrrt_perception.tracking import (
+    ExpectedObject,
+    ObjectEstimate,
+    ObjectTracker,
+    TrackerParams,
+    TrackStatus,
+)
+
+FRAME_ID = "world"
+PAIRING_BUFFER = 10              # unpaired images kept per stream while waiting for the other
+STATUS_COLORS = {TrackStatus.TRACKED: (0.1, 0.9, 0.1), TrackStatus.OCCLUDED: (0.95, 0.8, 0.1),
+                 TrackStatus.STALE: (0.95, 0.5, 0.1), TrackStatus.LOST: (0.9, 0.1, 0.1)}
+
+
+def _stamp_key(stamp: TimeMsg) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def _float_range(low: float, high: float, text: str) -> ParameterDescriptor:
+    return ParameterDescriptor(description=text, floating_point_range=[
+        FloatingPointRange(from_value=low, to_value=high, step=0.0)])
+
+
+@dataclass
+class _SettleRequest:
+    requested_at: float          # node time (s) of the request; only later frames count
+    max_speed: float | None
+    done: threading.Event
+    result: list[ObjectEstimate] | None = None
+
+
+class PerceptionNode(Node):
+    def __init__(self) -> None:
+        super().__init__("perception_node")
+        self._declare_parameters()
+        p = self.get_parameter
+        self.camera_position = tuple(p("camera_position").value)
+        self.camera_orientation = tuple(p("camera_orientation_xyzw").value)
+        self.table_height = p("table_height").value
+        self.segmentation_params = SegmentationParams(
+            depth_threshold=p("depth_threshold").value,
+            top_face_tolerance=p("top_face_tolerance").value,
+            occluder_margin=p("occluder_margin").value,
+            min_area_px=p("min_area_px").value)
+        tracker_params = TrackerParams(
+            stale_timeout=p("stale_timeout").value, lost_timeout=p("lost_timeout").value,
+            settle_speed=p("settle_speed").value, settle_window=p("settle_window").value,
+            settle_angular_speed=p("settle_angular_speed").value)
+        self.classes = load_class_table()
+        self.tracker = ObjectTracker(self.classes, tracker_params, self._expected_objects())
+
+        self.lock = threading.Lock()
+        self.camera: CameraView | None = None
+        self.camera_problem: str | None = "no CameraInfo received yet"
+        self.colour_by_stamp: dict[int, Image] = {}
+        self.depth_by_stamp: dict[int, Image] = {}
+        self.settle_requests: list[_SettleRequest] = []
+        self.last_publish = 0.0          # monotonic (wall) time of the last publication
+        self.last_frame_arrival: float | None = None   # monotonic time of the last frame
+
+        images = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(Image, "/camera/image_raw", self._on_colour,
+                                 qos_profile_sensor_data, callback_group=images)
+        self.create_subscription(Image, "/camera/depth/image_raw", self._on_depth,
+                                 qos_profile_sensor_data, callback_group=images)
+        self.create_subscription(CameraInfo, "/camera/camera_info", self._on_camera_info,
+                                 qos_profile_sensor_data, callback_group=images)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.objects_pub = self.create_publisher(ObjectStateArray, "/perception/objects", reliable)
+        self.markers_pub = self.create_publisher(MarkerArray, "/perception/markers", reliable)
+        self.create_service(GetSettledObjects, "/perception/get_settled_objects",
+                            self._on_get_settled, callback_group=ReentrantCallbackGroup())
+        self.period = 1.0 / p("publish_rate").value
+        # Own group: republishing must not wait behind a frame being segmented.
+        self.create_timer(self.period / 2.0, self._on_timer,
+                          callback_group=MutuallyExclusiveCallbackGroup(),
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    # --------------------------------------------------------------------------- parameters
+    def _declare_parameters(self) -> None:
+        declare = self.declare_parameter
+        declare("camera_position", [0.45, 0.0, 0.9], ParameterDescriptor(
+            description="optical centre of the camera in the world frame (x, y, z), metres"))
+        declare("camera_orientation_xyzw", list(OVERHEAD_ORIENTATION_XYZW), ParameterDescriptor(
+            description="orientation of the optical frame in the world frame, quaternion "
+                        "(x, y, z, w); the default looks straight down, image up = world +x"))
+        declare("table_height", 0.0, _float_range(-1.0, 2.0, "world z of the table top, metres"))
+        declare("depth_threshold", 0.005, _float_range(
+            0.001, 0.1, "height above the table from which a pixel belongs to an object, m"))
+        declare("top_face_tolerance", 0.001, _float_range(
+            0.0002, 0.02, "height difference within which a pixel is on an object's top face, m"))
+        declare("occluder_margin", 0.01, _float_range(
+            0.002, 0.5, "height above an object's top that counts as something covering it, m"))
+        declare("min_area_px", 150, ParameterDescriptor(
+            description="smallest top face (pixels) taken for an object",
+            integer_range=[IntegerRange(from_value=10, to_value=100000, step=1)]))
+        declare("scenario", "", ParameterDescriptor(
+            description="scenario name or path whose object ids name the detections "
+                        "(closest to their initial pose, by class); empty: <class>_<n>"))
+        declare("scenario_seed", -1, ParameterDescriptor(
+            description="seed for the scenario's random placements; -1 uses the file's",
+            integer_range=[IntegerRange(from_value=-1, to_value=2**31 - 1, step=1)]))
+        declare("stale_timeout", 1.0, _float_range(
+            0.05, 60.0, "wall-clock seconds without a new frame after which poses are STALE"))
+        declare("lost_timeout", 5.0, _float_range(
+            0.1, 600.0, "seconds (frame stamps) an object may stay unseen, not covered, before "
+                        "it is LOST"))
+        declare("settle_speed", 0.005, _float_range(
+            1e-5, 1.0, "m/s below which an object counts as still for a settled observation"))
+        declare("settle_angular_speed", 0.05, _float_range(
+            1e-5, 10.0, "rad/s below which an object counts as still"))
+        declare("settle_window", 0.3, _float_range(
+            0.0, 10.0, "seconds over which every object must be still to be settled"))
+        declare("publish_rate", 10.0, _float_range(
+            1.0, 100.0, "Hz at which object states are (re)published, wall clock"))
+
+    def _expected_objects(self) -> list[ExpectedObject]:
+        name = self.get_parameter("scenario").value
+        if not name:
+            return []
+        seed = self.get_parameter("scenario_seed").value
+        scenario = load_scenario(name, seed=None if seed < 0 else seed)
+        return [ExpectedObject(o.id, o.object_class, o.pose) for o in scenario.objects]
+
+    # ---------------------------------------------------------------------------- callbacks
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            camera = CameraView.from_camera_info(list(msg.k), msg.width, msg.height,
+                                                 self.camera_position, self.camera_orientation)
+        except TsrrtError as error:
+            self.camera, self.camera_problem = None, str(error)
+            return
+        if self.camera is None or not (np.array_equal(camera.intrinsics, self.camera.intrinsics)
+                                       and (camera.width, camera.height)
+                                       == (self.camera.width, self.camera.height)):
+            self.camera, self.camera_problem = camera, None
+
+    def _on_colour(self, msg: Image) -> None:
+        key = _stamp_key(msg.header.stamp)
+        depth = self.depth_by_stamp.pop(key, None)
+        if depth is None:
+            self._remember(self.colour_by_stamp, key, msg)
+        else:
+            self._process(msg, depth)
+
+    def _on_depth(self, msg: Image) -> None:
+        key = _stamp_key(msg.header.stamp)
+        colour = self.colour_by_stamp.pop(key, None)
+        if colour is None:
+            self._remember(self.depth_by_stamp, key, msg)
+        else:
+            self._process(colour, msg)
+
+    @staticmethod
+    def _remember(buffer: dict[int, Image], key: int, msg: Image) -> None:
+        buffer[key] = msg
+        while len(buffer) > PAIRING_BUFFER:
+            del buffer[min(buffer)]
+
+    def _skip(self, reason: str) -> None:
+        self.get_logger().warning(f"skipping frame: {reason}", throttle_duration_sec=5.0)
+
+    def _process(self, colour_msg: Image, depth_msg: Image) -> None:
+        if self.camera is None:
+            self._skip(self.camera_problem or "no camera model")
+            return
+        try:
+            rgb = image_to_array(colour_msg.encoding, colour_msg.width, colour_msg.height,
+                                 colour_msg.step, bool(colour_msg.is_bigendian), colour_msg.data)
+            depth = image_to_array(depth_msg.encoding, depth_msg.width, depth_msg.height,
+                                   depth_msg.step, bool(depth_msg.is_bigendian), depth_msg.data)
+        except TsrrtError as error:
+            self._skip(str(error))
+            return
+        if colour_msg.encoding not in ("rgb8", "bgr8"):
+            self._skip(f"colour image has encoding {colour_msg.encoding!r}, expected rgb8 or bgr8")
+            return
+        if colour_msg.encoding == "bgr8":
+            rgb = rgb[:, :, ::-1]
+        if depth_msg.encoding == "16UC1":
+            depth = depth.astype(np.float32) * 0.001       # REP 118: millimetres
+        elif depth_msg.encoding != "32FC1":
+            self._skip(f"depth image has encoding {depth_msg.encoding!r}, expected 32FC1/16UC1")
+            return
+        if rgb.shape[:2] != depth.shape:
+            self._skip(f"colour {rgb.shape[1]}x{rgb.shape[0]} and depth "
+                       f"{depth.shape[1]}x{depth.shape[0]} differ in size")
+            return
+        try:
+            result = segment_objects(depth, self.camera, self.table_height, self.classes,
+                                     self.segmentation_params, rgb)
+        except TsrrtError as error:
+            self._skip(str(error))
+            return
+        stamp = Time.from_msg(depth_msg.header.stamp).nanoseconds * 1e-9
+        with self.lock:
+            self.tracker.update(result.detections, stamp, result.height_image)
+            self.last_frame_arrival = time.monotonic()
+            for request in self.settle_requests:
+                if request.result is None and stamp > request.requested_at \
+                        and self.tracker.settled(request.max_speed):
+                    request.result = self.tracker.estimates()
+                    request.done.set()
+        self._publish()
+
+    def _on_timer(self) -> None:
+        if time.monotonic() - self.last_publish >= self.period * 0.9:
+            self._publish()
+
+    def _on_get_settled(self, request: GetSettledObjects.Request,
+                        response: GetSettledObjects.Response) -> GetSettledObjects.Response:
+        """Wait (wall clock, up to timeout_s) for the next settled frame after the request."""
+        if not (0.0 < request.timeout_s <= 600.0) or request.max_speed < 0.0:
+            response.success = False
+            response.message = (f"timeout_s must be in (0, 600] and max_speed >= 0; got "
+                                f"{request.timeout_s}, {request.max_speed}")
+            return response
+        waiter = _SettleRequest(self.get_clock().now().nanoseconds * 1e-9,
+                                request.max_speed or None, threading.Event())
+        with self.lock:
+            self.settle_requests.append(waiter)
+        waiter.done.wait(request.timeout_s)
+        with self.lock:
+            self.settle_requests.remove(waiter)
+            if waiter.result is None:
+                reasons = self.tracker.unsettled_reasons() or ["objects still moving or no frames"]
+                response.success = False
+                response.message = (f"no settled observation within {request.timeout_s} s: "
+                                    + ", ".join(reasons))
+                response.objects = self._objects_message(self._estimates())
+                return response
+        response.success = True
+        response.message = f"settled: {len(waiter.result)} objects"
+        response.objects = self._objects_message(waiter.result)
+        return response
+
+    # ------------------------------------------------------------------------------ output
+    def _estimates(self) -> list[ObjectEstimate]:
+        """Current estimates, aged by the wall time since the last frame (call under lock)."""
+        age = None if self.last_frame_arrival is None else \
+            time.monotonic() - self.last_frame_arrival
+        return self.tracker.estimates(age)
+
+    def _objects_message(self, estimates: list[ObjectEstimate]) -> ObjectStateArray:
+        msg = ObjectStateArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = FRAME_ID
+        for estimate in estimates:
+            state = ObjectState(
+                id=estimate.id, object_class=estimate.object_class, shape=estimate.shape,
+                x=estimate.pose.x, y=estimate.pose.y, theta=estimate.pose.theta,
+                length=estimate.length, width=estimate.width, height=estimate.height,
+                symmetry=estimate.symmetry, confidence=float(estimate.confidence),
+                status=int(estimate.status))
+            if estimate.last_seen is not None:
+                state.last_seen = Time(nanoseconds=round(estimate.last_seen * 1e9)).to_msg()
+            msg.objects.append(state)
+        return msg
+
+    def _publish(self) -> None:
+        with self.lock:
+            estimates = self._estimates()
+        self.last_publish = time.monotonic()
+        objects = self._objects_message(estimates)
+        self.objects_pub.publish(objects)
+        self.markers_pub.publish(self._markers(estimates, objects.header.stamp))
+
+    def _markers(self, estimates: list[ObjectEstimate], stamp: TimeMsg) -> MarkerArray:
+        markers = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
+        for index, estimate in enumerate(estimates):
+            r, g, b = STATUS_COLORS[estimate.status]
+            z = self.table_height + estimate.height + 0.002
+            outline = footprint_polygon(estimate.shape, estimate.length, estimate.width,
+                                        estimate.pose)
+            footprint = Marker(type=Marker.LINE_STRIP, ns="footprints", id=index,
+                               action=Marker.ADD, color=ColorRGBA(r=r, g=g, b=b, a=1.0))
+            footprint.header.frame_id, footprint.header.stamp = FRAME_ID, stamp
+            footprint.scale.x = 0.003
+            footprint.pose.orientation.w = 1.0
+            footprint.points = [Point(x=float(px), y=float(py), z=z)
+                                for px, py in [*outline, outline[0]]]
+            label = Marker(type=Marker.TEXT_VIEW_FACING, ns="labels", id=index,
+                           action=Marker.ADD, color=ColorRGBA(r=r, g=g, b=b, a=1.0),
+                           text=f"{estimate.id} ({estimate.status.name.lower()})")
+            label.header.frame_id, label.header.stamp = FRAME_ID, stamp
+            label.scale.z = 0.02
+            label.pose.position = Point(x=estimate.pose.x, y=estimate.pose.y, z=z + 0.03)
+            label.pose.orientation.w = 1.0
+            markers.markers += [footprint, label]
+        return markers
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PerceptionNode()
+        executor = MultiThreadedExecutor(num_threads=3)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
