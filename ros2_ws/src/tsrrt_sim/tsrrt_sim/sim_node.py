@@ -1,0 +1,458 @@
+"""ROS 2 face of the simulator: clock, joint states, camera, ground truth, arm control, services.
+
+Threads: a physics thread owns the SimWorld (every PyBullet call happens on it). It steps the
+world in ticks of a few physics steps, publishes /clock after each tick and the other topics
+when due, and runs requests from ROS callbacks (goals, services) between ticks. ROS callbacks
+run on a MultiThreadedExecutor and hand work to the physics thread through a queue.
+
+Time: this node drives /clock and therefore never runs on simulation time itself; physics is paced
+by the wall clock (real_time_factor > 0) or runs as fast as it can (0). Message stamps are
+simulation time. Rates:
+- clock_rate_hz and joint_state_rate_hz are in simulation time, like a robot's own loops;
+- camera_rate_hz is in wall-clock time: TinyRenderer is slow, and consumers process frames at a
+  wall-clock pace; at a real-time factor of 20, 10 frames per wall second are one frame every
+  2 s of simulated time. Frames are rendered in a worker process while physics continues, and
+  each frame (with its ground truth on /sim/object_states) is stamped with the simulation time
+  of the state it shows.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any, TypeVar
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import ServerGoalHandle
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image, JointState
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from tsrrt_common.errors import TsrrtError
+from tsrrt_common.geometry import Pose2D, wrap_angle
+from tsrrt_common.robot_model import ARM_JOINT_NAMES
+from tsrrt_common.scenario import load_scenario
+from tsrrt_interfaces.action import FollowJointTrajectory
+from tsrrt_interfaces.msg import ObjectState, ObjectStateArray
+from tsrrt_interfaces.srv import DisturbObject, LoadScenario
+from tsrrt_sim.image_messages import numpy_to_image
+from tsrrt_sim.render_worker import RenderWorker
+from tsrrt_sim.trajectory_controller import (
+    ControllerGains,
+    ExecutionStatus,
+    JointToleranceOverride,
+    JointTrajectory,
+    SetPoint,
+    Tolerances,
+    TrajectoryError,
+    TrajectoryErrorCode,
+    TrajectoryExecution,
+    resolve_tolerances,
+    validate_trajectory,
+)
+from tsrrt_sim.world import CameraFrame, SimWorld, VisualState, yaw_of_quaternion
+
+WORLD_FRAME = "world"
+CAMERA_FRAME = "camera_optical"
+REQUEST_TIMEOUT_S = 30.0
+# If pacing falls this far behind the wall clock, restart it instead of running in a burst.
+MAX_PACING_LAG_S = 0.5
+
+T = TypeVar("T")
+
+for _code in TrajectoryErrorCode:   # the core's codes are the action's codes
+    assert getattr(FollowJointTrajectory.Result, _code.name) == _code.value, _code
+
+
+def stamp(seconds: float) -> TimeMsg:
+    """builtin_interfaces/Time of a simulation time in seconds."""
+    nanoseconds = round(seconds * 1e9)
+    return TimeMsg(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def _point(positions: np.ndarray, velocities: np.ndarray, accelerations: np.ndarray | None = None
+           ) -> JointTrajectoryPoint:
+    point = JointTrajectoryPoint()
+    point.positions = positions.tolist()
+    point.velocities = velocities.tolist()
+    if accelerations is not None:
+        point.accelerations = accelerations.tolist()
+    return point
+
+
+class SimNode(Node):
+    """The simulated robot, camera and table behind ROS 2 topics, an action and services."""
+
+    def __init__(self) -> None:
+        super().__init__("sim_node")
+        self._declare_parameters()
+        p = self._parameter
+        self.physics_hz = p("physics_hz")
+        self.real_time_factor = p("real_time_factor")
+        self.tick_steps = max(1, round(self.physics_hz / p("clock_rate_hz")))
+        self.joint_state_period = 1.0 / p("joint_state_rate_hz")
+        self.camera_period = 1.0 / p("camera_rate_hz")
+        self.feedback_period = 1.0 / p("feedback_rate_hz")
+        tolerances = Tolerances.uniform(
+            path_position=p("path_tolerance"), path_velocity=0.0,
+            goal_position=p("goal_tolerance"), goal_velocity=p("stopped_velocity_tolerance"),
+            goal_time=p("goal_time_tolerance"))
+        scenario = load_scenario(p("scenario"), p("seed") if p("seed") >= 0 else None)
+        self.world = SimWorld(scenario, gui=p("gui"), physics_hz=self.physics_hz,
+                              gains=ControllerGains(p("kp"), p("kd")), tolerances=tolerances)
+        self.world.settle(0.5)
+        self.renderer = RenderWorker(scenario, self.world.camera)
+        self._continuous_theta: dict[str, float] = {}
+        self._pending_visual_state: VisualState | None = None
+
+        self.clock_publisher = self.create_publisher(Clock, "/clock", 10)
+        self.joint_state_publisher = self.create_publisher(JointState, "/joint_states", 10)
+        self.image_publisher = self.create_publisher(Image, "/camera/image_raw",
+                                                     qos_profile_sensor_data)
+        self.depth_publisher = self.create_publisher(Image, "/camera/depth/image_raw",
+                                                     qos_profile_sensor_data)
+        # Reliable + transient local: a late subscriber of either kind still gets the intrinsics.
+        self.camera_info_publisher = self.create_publisher(
+            CameraInfo, "/camera/camera_info",
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.ground_truth_publisher = self.create_publisher(
+            ObjectStateArray, "/sim/object_states", 10)
+        self.camera_info = self._make_camera_info()
+
+        group = ReentrantCallbackGroup()
+        self.action_server = ActionServer(
+            self, FollowJointTrajectory, "/arm_controller/follow_joint_trajectory",
+            execute_callback=self._execute_goal, goal_callback=self._on_goal,
+            cancel_callback=self._on_cancel, callback_group=group)
+        self.create_service(LoadScenario, "/sim/load_scenario", self._on_load_scenario,
+                            callback_group=group)
+        self.create_service(DisturbObject, "/sim/disturb_object", self._on_disturb_object,
+                            callback_group=group)
+
+        self._requests: queue.Queue[tuple[Callable[[], Any], Future]] = queue.Queue()
+        self._stop = threading.Event()
+        self._physics_thread = threading.Thread(target=self._physics_loop, name="physics",
+                                                daemon=True)
+        self._physics_thread.start()
+        self.get_logger().info(
+            f"simulating '{scenario.name}' at {self.physics_hz:g} Hz, real-time factor "
+            f"{self.real_time_factor or 'unlimited'}, camera {1 / self.camera_period:g} Hz "
+            "(wall clock)")
+
+    # ---------------------------------------------------------------------------- parameters
+    def _declare_parameters(self) -> None:
+        def number(name: str, default: float, low: float, high: float, text: str) -> None:
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=text, read_only=True,
+                floating_point_range=[FloatingPointRange(from_value=low, to_value=high)]))
+
+        self.declare_parameter("scenario", "clean", ParameterDescriptor(
+            description="shipped scenario name or path of a scenario YAML file",
+            read_only=True))
+        self.declare_parameter("seed", -1, ParameterDescriptor(
+            description="placement seed for random poses; -1 keeps the file's seed",
+            read_only=True, integer_range=[IntegerRange(from_value=-1, to_value=2**31 - 1)]))
+        self.declare_parameter("gui", False, ParameterDescriptor(
+            description="open the PyBullet window (needs a display)", read_only=True))
+        number("real_time_factor", 0.0, 0.0, 1000.0,
+               "simulated seconds per wall second; 0 runs as fast as possible")
+        number("physics_hz", 240.0, 60.0, 2000.0, "physics steps per simulated second")
+        number("clock_rate_hz", 40.0, 1.0, 1000.0,
+               "/clock messages per simulated second (rounded to whole physics steps)")
+        number("joint_state_rate_hz", 40.0, 1.0, 1000.0,
+               "/joint_states messages per simulated second (at most one per clock tick)")
+        number("camera_rate_hz", 10.0, 0.1, 60.0,
+               "camera frames per WALL-CLOCK second (rendering is the bottleneck)")
+        number("feedback_rate_hz", 10.0, 0.5, 100.0,
+               "trajectory action feedback per wall-clock second")
+        number("kp", 2500.0, 1.0, 1e5, "computed-torque position gain, 1/s^2")
+        number("kd", 100.0, 0.0, 1e4, "computed-torque velocity gain, 1/s")
+        number("path_tolerance", 0.1, 0.0, 10.0,
+               "default joint position path tolerance, rad (0 disables)")
+        number("goal_tolerance", 0.01, 0.0, 10.0,
+               "default joint position goal tolerance, rad (0 disables)")
+        number("stopped_velocity_tolerance", 0.01, 0.0, 10.0,
+               "joint speed below which the arm counts as stopped at the goal, rad/s")
+        number("goal_time_tolerance", 1.0, 0.0, 60.0,
+               "default time allowed after the trajectory's end to meet the goal tolerance, s")
+
+    def _parameter(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    def _make_camera_info(self) -> CameraInfo:
+        camera = self.world.camera
+        K = camera.intrinsics
+        info = CameraInfo()
+        info.header.frame_id = CAMERA_FRAME
+        info.width, info.height = camera.width, camera.height
+        info.distortion_model = "plumb_bob"
+        info.d = [0.0] * 5
+        info.k = K.ravel().tolist()
+        info.r = np.eye(3).ravel().tolist()
+        info.p = np.hstack([K, np.zeros((3, 1))]).ravel().tolist()
+        return info
+
+    # ---------------------------------------------------------------------- physics thread
+    def _call_in_physics(self, function: Callable[[], T]) -> T:
+        """Run `function` on the physics thread between ticks and return its result."""
+        if not self._physics_thread.is_alive():
+            raise TsrrtError("the physics thread is not running")
+        future: Future = Future()
+        self._requests.put((function, future))
+        return future.result(timeout=REQUEST_TIMEOUT_S)
+
+    def _run_requests(self) -> None:
+        while True:
+            try:
+                function, future = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                future.set_result(function())
+            except Exception as error:  # noqa: BLE001 - handed to the waiting caller
+                future.set_exception(error)
+
+    def _physics_loop(self) -> None:
+        world = self.world
+        wall_origin, sim_origin = time.monotonic(), world.sim_time
+        next_joint_state = world.sim_time
+        next_frame_wall = time.monotonic()
+        try:
+            while not self._stop.is_set() and self.context.ok():
+                self._run_requests()
+                world.step(self.tick_steps)
+                now_sim = world.sim_time
+                self.clock_publisher.publish(Clock(clock=stamp(now_sim)))
+                if now_sim >= next_joint_state:
+                    self._publish_joint_state()
+                    next_joint_state += self.joint_state_period * math.ceil(
+                        (now_sim - next_joint_state + 1e-12) / self.joint_state_period)
+                frame = self.renderer.poll()
+                if frame is not None:
+                    self._publish_frame(frame, self._pending_visual_state)
+                now_wall = time.monotonic()
+                if now_wall >= next_frame_wall and not self.renderer.busy:
+                    next_frame_wall = max(next_frame_wall + self.camera_period, now_wall)
+                    self._start_frame()
+                if self.real_time_factor > 0:
+                    target = wall_origin + (now_sim - sim_origin) / self.real_time_factor
+                    lag = time.monotonic() - target
+                    if lag > MAX_PACING_LAG_S:
+                        wall_origin, sim_origin = time.monotonic(), now_sim
+                    elif lag < 0:
+                        time.sleep(-lag)
+        except Exception as error:  # noqa: BLE001 - reported, then the node shuts down
+            if not self.context.ok():
+                return      # a signal shut ROS down while this thread was publishing
+            self.get_logger().fatal(f"physics loop failed: {error!r}")
+            rclpy.try_shutdown(context=self.context)
+            raise
+
+    def _publish_joint_state(self) -> None:
+        state = self.world.joint_state()
+        message = JointState()
+        message.header.stamp = stamp(self.world.sim_time)
+        message.name = list(ARM_JOINT_NAMES)
+        message.position = state.positions.tolist()
+        message.velocity = state.velocities.tolist()
+        message.effort = state.efforts.tolist()
+        self.joint_state_publisher.publish(message)
+
+    def _start_frame(self) -> None:
+        """Ask the worker for a frame if anyone watches the images, else publish ground truth."""
+        state = self.world.visual_state()
+        wants_images = (self.image_publisher.get_subscription_count()
+                        + self.depth_publisher.get_subscription_count()) > 0
+        if wants_images:
+            self._pending_visual_state = state
+            self.renderer.request(state)
+        else:
+            self._publish_ground_truth(state)
+
+    def _publish_frame(self, frame: CameraFrame, state: VisualState) -> None:
+        header_stamp = stamp(frame.sim_time)
+        rgb = numpy_to_image(frame.rgb, "rgb8")
+        depth = numpy_to_image(frame.depth, "32FC1")
+        for message in (rgb, depth, self.camera_info):
+            message.header.stamp = header_stamp
+            message.header.frame_id = CAMERA_FRAME
+        self.image_publisher.publish(rgb)
+        self.depth_publisher.publish(depth)
+        self.camera_info_publisher.publish(self.camera_info)
+        self._publish_ground_truth(state)
+
+    def _publish_ground_truth(self, state: VisualState) -> None:
+        """True poses of the movable objects at the state's time, theta kept continuous."""
+        message = ObjectStateArray()
+        message.header.stamp = stamp(state.sim_time)
+        message.header.frame_id = WORLD_FRAME
+        for spec in self.world.scenario.objects:
+            position, orientation = state.body_poses[spec.id]
+            theta = yaw_of_quaternion(orientation)
+            previous = self._continuous_theta.get(spec.id)
+            if previous is not None:
+                theta = previous + wrap_angle(theta - previous)
+            self._continuous_theta[spec.id] = theta
+            message.objects.append(ObjectState(
+                id=spec.id, object_class=spec.object_class, shape=spec.shape,
+                x=position[0], y=position[1], theta=theta, length=spec.length,
+                width=spec.width, height=spec.height, symmetry=spec.symmetry, confidence=1.0,
+                status=ObjectState.STATUS_TRACKED, last_seen=message.header.stamp))
+        self.ground_truth_publisher.publish(message)
+
+    # ------------------------------------------------------------------------------ action
+    def _on_goal(self, goal_request: FollowJointTrajectory.Goal) -> GoalResponse:
+        """Accept every goal; _execute_goal validates it so the result can say what is wrong."""
+        points = goal_request.trajectory.points
+        self.get_logger().info(f"trajectory goal received: {len(points)} points")
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, goal_handle: ServerGoalHandle) -> CancelResponse:
+        return CancelResponse.ACCEPT
+
+    def _prepare(self, goal: FollowJointTrajectory.Goal
+                 ) -> tuple[JointTrajectory, Tolerances, float | None]:
+        """The goal's trajectory, tolerances and start time (None: now); raises TrajectoryError."""
+        trajectory_msg = goal.trajectory
+        points = trajectory_msg.points
+        trajectory = validate_trajectory(
+            list(trajectory_msg.joint_names),
+            [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in points],
+            [list(p.positions) for p in points], [list(p.velocities) for p in points],
+            [list(p.accelerations) for p in points], self.world.kinematics.limits)
+        tolerances = resolve_tolerances(
+            self.world.controller.default_tolerances,
+            [JointToleranceOverride(t.name, t.position, t.velocity) for t in goal.path_tolerance],
+            [JointToleranceOverride(t.name, t.position, t.velocity) for t in goal.goal_tolerance],
+            goal.goal_time_tolerance.sec + goal.goal_time_tolerance.nanosec * 1e-9)
+        header_stamp = trajectory_msg.header.stamp
+        start = (header_stamp.sec + header_stamp.nanosec * 1e-9
+                 if (header_stamp.sec or header_stamp.nanosec) else None)
+        return trajectory, tolerances, start
+
+    def _start_execution(self, trajectory: JointTrajectory, tolerances: Tolerances,
+                         start: float | None) -> TrajectoryExecution:
+        now = self.world.sim_time
+        return self.world.controller.start(trajectory, tolerances,
+                                           now if start is None else start, now)
+
+    def _execute_goal(self, goal_handle: ServerGoalHandle) -> FollowJointTrajectory.Result:
+        result = FollowJointTrajectory.Result()
+        try:
+            trajectory, tolerances, start = self._prepare(goal_handle.request)
+            execution = self._call_in_physics(
+                lambda: self._start_execution(trajectory, tolerances, start))
+        except TrajectoryError as error:
+            self.get_logger().warn(f"trajectory goal refused ({error.code.name}): {error}")
+            goal_handle.abort()
+            result.error_code, result.error_string = int(error.code), str(error)
+            return result
+        while not execution.done:
+            if goal_handle.is_cancel_requested:
+                self._call_in_physics(lambda: self.world.controller.cancel(execution))
+                continue
+            if execution.desired is not None:
+                goal_handle.publish_feedback(self._feedback(execution))
+            time.sleep(self.feedback_period)
+        result.error_code = int(execution.error_code)
+        result.error_string = execution.error_string
+        result.tool_rms_error = execution.tool_rms_error
+        result.tool_max_error = execution.tool_error_max
+        if execution.status is ExecutionStatus.SUCCEEDED:
+            goal_handle.succeed()
+        elif execution.status is ExecutionStatus.CANCELED:
+            goal_handle.canceled()
+        else:
+            self.get_logger().warn(f"trajectory goal ended {execution.status.value}: "
+                                   f"{execution.error_string}")
+            goal_handle.abort()
+        return result
+
+    def _feedback(self, execution: TrajectoryExecution) -> FollowJointTrajectory.Feedback:
+        desired: SetPoint = execution.desired
+        positions, velocities = execution.actual_positions, execution.actual_velocities
+        feedback = FollowJointTrajectory.Feedback()
+        feedback.header.stamp = stamp(execution.time)
+        feedback.joint_names = list(ARM_JOINT_NAMES)
+        feedback.desired = _point(desired.positions, desired.velocities, desired.accelerations)
+        feedback.actual = _point(positions, velocities)
+        feedback.error = _point(desired.positions - positions, desired.velocities - velocities)
+        return feedback
+
+    # ---------------------------------------------------------------------------- services
+    def _on_load_scenario(self, request: LoadScenario.Request,
+                          response: LoadScenario.Response) -> LoadScenario.Response:
+        try:
+            scenario = load_scenario(request.scenario, request.seed if request.seed >= 0 else None)
+        except TsrrtError as error:
+            response.success, response.message = False, str(error)
+            return response
+
+        def reload() -> None:
+            self.world.load_scenario(scenario)
+            self.renderer.load_scenario(scenario)
+            self._continuous_theta.clear()
+            self.world.settle(0.5)
+
+        self._call_in_physics(reload)
+        self.get_logger().info(f"loaded scenario '{scenario.name}' (seed {scenario.seed})")
+        response.success, response.scenario_name = True, scenario.name
+        response.message = f"loaded {scenario.source} with seed {scenario.seed}"
+        return response
+
+    def _on_disturb_object(self, request: DisturbObject.Request,
+                           response: DisturbObject.Response) -> DisturbObject.Response:
+        try:
+            pose: Pose2D = self._call_in_physics(lambda: self.world.disturb_object(
+                request.object_id, request.dx, request.dy, request.dtheta))
+        except TsrrtError as error:
+            response.success, response.message = False, str(error)
+            return response
+        response.success = True
+        response.message = (f"{request.object_id} moved to ({pose.x:.4f}, {pose.y:.4f}, "
+                            f"{pose.theta:.4f})")
+        return response
+
+    # ---------------------------------------------------------------------------- shutdown
+    def destroy_node(self) -> None:
+        """Stop physics, the render worker and PyBullet before the node goes."""
+        self._stop.set()
+        if self._physics_thread.is_alive():
+            self._physics_thread.join(timeout=5.0)
+        self.renderer.close()
+        self.world.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = None
+    executor = MultiThreadedExecutor(num_threads=6)
+    try:
+        node = SimNode()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

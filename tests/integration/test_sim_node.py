@@ -1,0 +1,314 @@
+"""The simulator node as a process: clock, joint states, camera, ground truth, trajectory action,
+services and shutdown.
+
+The node runs on a random ROS domain of its own (localhost discovery only); the test talks to it
+through its own rclpy context, and every process started here is killed at teardown.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.integration
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("tsrrt_interfaces.action")
+from builtin_interfaces.msg import Duration  # noqa: E402
+from rclpy.action import ActionClient  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import (  # noqa: E402
+    DurabilityPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image, JointState  # noqa: E402
+from trajectory_msgs.msg import JointTrajectoryPoint  # noqa: E402
+
+from tsrrt_common.camera import OverheadCamera  # noqa: E402
+from tsrrt_common.robot_model import ARM_JOINT_NAMES, READY_POSTURE  # noqa: E402
+from tsrrt_interfaces.action import FollowJointTrajectory  # noqa: E402
+from tsrrt_interfaces.msg import ObjectStateArray  # noqa: E402
+from tsrrt_interfaces.srv import DisturbObject, LoadScenario  # noqa: E402
+from tsrrt_sim.image_messages import image_to_numpy  # noqa: E402
+
+PARAMS_FILE = Path(__file__).resolve().parents[2] / "ros2_ws/src/tsrrt_sim/config/sim_node.yaml"
+SCENARIO = "obstacle"
+Result = FollowJointTrajectory.Result
+
+
+def _free_domain_id() -> int:
+    """A domain id other than the caller's (scripts/test.sh picks one per run)."""
+    taken = {os.environ.get("ROS_DOMAIN_ID", "")}
+    while True:
+        candidate = random.randint(1, 101)
+        if str(candidate) not in taken:
+            return candidate
+
+
+def start_sim(env: dict[str, str], *params: str) -> subprocess.Popen:
+    args = ["--ros-args", "--params-file", str(PARAMS_FILE)]
+    for param in ("scenario:=" + SCENARIO, *params):
+        args += ["-p", param]
+    return subprocess.Popen([sys.executable, "-m", "tsrrt_sim.sim_node", *args], env=env,
+                            start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def stop(process: subprocess.Popen, sig: int = signal.SIGINT) -> int:
+    """Signal the process group, wait, escalate to SIGKILL; returns the exit code."""
+    if process.poll() is None:
+        os.killpg(process.pid, sig)
+        try:
+            process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait(timeout=10)
+    return process.returncode
+
+
+@pytest.fixture(scope="module")
+def ros_env() -> Iterator[dict[str, str]]:
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("ROS_DOMAIN_ID", str(_free_domain_id()))
+        patch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        yield dict(os.environ)
+
+
+@pytest.fixture(scope="module")
+def sim(ros_env) -> Iterator[subprocess.Popen]:
+    process = start_sim(ros_env)
+    yield process
+    stop(process)
+
+
+class Probe(Node):
+    """Subscribes to everything the sim publishes and keeps the latest messages."""
+
+    def __init__(self, context) -> None:
+        super().__init__("sim_node_probe", context=context)
+        self.clock: list[float] = []
+        self.joint_states: list[JointState] = []
+        self.images: list[Image] = []
+        self.depths: list[Image] = []
+        self.camera_info: CameraInfo | None = None
+        self.truth: list[ObjectStateArray] = []
+        self.create_subscription(
+            Clock, "/clock", lambda m: self.clock.append(m.clock.sec + m.clock.nanosec * 1e-9),
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.create_subscription(JointState, "/joint_states", self.joint_states.append, 10)
+        self.create_subscription(Image, "/camera/image_raw", self.images.append,
+                                 qos_profile_sensor_data)
+        self.create_subscription(Image, "/camera/depth/image_raw", self.depths.append,
+                                 qos_profile_sensor_data)
+        self.create_subscription(
+            CameraInfo, "/camera/camera_info", lambda m: setattr(self, "camera_info", m),
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.create_subscription(ObjectStateArray, "/sim/object_states", self.truth.append, 10)
+        self.trajectory = ActionClient(self, FollowJointTrajectory,
+                                       "/arm_controller/follow_joint_trajectory")
+        self.load_scenario = self.create_client(LoadScenario, "/sim/load_scenario")
+        self.disturb = self.create_client(DisturbObject, "/sim/disturb_object")
+        self.executor_ = SingleThreadedExecutor(context=context)
+        self.executor_.add_node(self)
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float = 30.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.executor_.spin_once(timeout_sec=0.05)
+            if condition():
+                return True
+        return False
+
+    def wait_for(self, future, timeout: float = 30.0):
+        assert self.spin_until(future.done, timeout), "no answer in time"
+        return future.result()
+
+    def call(self, client, request):
+        assert client.wait_for_service(timeout_sec=30.0), f"{client.srv_name} not available"
+        return self.wait_for(client.call_async(request))
+
+    def send_goal(self, goal: FollowJointTrajectory.Goal, feedback: list | None = None):
+        assert self.trajectory.wait_for_server(timeout_sec=30.0), "no trajectory action server"
+        callback = feedback.append if feedback is not None else None
+        return self.wait_for(self.trajectory.send_goal_async(goal, feedback_callback=callback))
+
+    def execute(self, goal: FollowJointTrajectory.Goal, feedback: list | None = None):
+        handle = self.send_goal(goal, feedback)
+        assert handle.accepted
+        return self.wait_for(handle.get_result_async(), timeout=60.0)
+
+
+@pytest.fixture(scope="module")
+def probe(sim, ros_env) -> Iterator[Probe]:
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = Probe(context)
+    yield node
+    node.executor_.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def goal_to(targets: list[list[float]], times: list[float], names=ARM_JOINT_NAMES,
+            velocities: bool = True) -> FollowJointTrajectory.Goal:
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = list(names)
+    for target, t in zip(targets, times, strict=True):
+        point = JointTrajectoryPoint(positions=[float(v) for v in target])
+        if velocities:
+            point.velocities = [0.0] * len(target)
+        seconds = math.floor(t)
+        point.time_from_start = Duration(sec=seconds, nanosec=round((t - seconds) * 1e9))
+        goal.trajectory.points.append(point)
+    return goal
+
+
+def shifted(delta: float, joint: int = 0) -> list[float]:
+    q = list(READY_POSTURE)
+    q[joint] += delta
+    return q
+
+
+def test_clock_runs_ahead_of_the_wall_clock(probe):
+    assert probe.spin_until(lambda: len(probe.clock) > 10), "no /clock"
+    probe.clock.clear()
+    started = time.monotonic()
+    probe.spin_until(lambda: False, timeout=2.0)
+    wall = time.monotonic() - started
+    assert len(probe.clock) > 10
+    assert all(b > a for a, b in zip(probe.clock, probe.clock[1:], strict=False))
+    real_time_factor = (probe.clock[-1] - probe.clock[0]) / wall
+    print(f"sim_node real-time factor with a camera subscriber: {real_time_factor:.1f}")
+    assert real_time_factor > 1.0          # unlimited by default; the number is the bench's job
+
+
+def test_joint_states_name_the_arm_joints(probe):
+    assert probe.spin_until(lambda: bool(probe.joint_states)), "no /joint_states"
+    message = probe.joint_states[-1]
+    assert list(message.name) == list(ARM_JOINT_NAMES)
+    assert len(message.position) == len(message.velocity) == len(message.effort) == 7
+
+
+def test_camera_publishes_images_intrinsics_and_matching_ground_truth(probe):
+    assert probe.spin_until(lambda: probe.images and probe.depths and probe.camera_info
+                            and probe.truth), "missing camera topics or ground truth"
+    camera = OverheadCamera()
+    rgb, depth = image_to_numpy(probe.images[-1]), image_to_numpy(probe.depths[-1])
+    assert rgb.shape == (camera.height, camera.width, 3) and rgb.dtype == np.uint8
+    assert depth.shape == (camera.height, camera.width) and depth.dtype == np.float32
+    assert 0.8 < float(np.median(depth)) < 2.01
+    info = probe.camera_info
+    assert info.header.frame_id == probe.images[-1].header.frame_id == "camera_optical"
+    np.testing.assert_allclose(np.array(info.k).reshape(3, 3), camera.intrinsics)
+    stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in probe.truth}
+    image_stamp = probe.images[-1].header.stamp
+    assert (image_stamp.sec, image_stamp.nanosec) in stamps   # truth for exactly that frame
+    assert [o.id for o in probe.truth[-1].objects] == ["eraser"]
+
+
+def test_good_trajectory_succeeds_with_feedback(probe):
+    feedback: list = []
+    result = probe.execute(goal_to([shifted(0.3), READY_POSTURE], [1.5, 3.0]), feedback).result
+    assert result.error_code == Result.SUCCESSFUL, result.error_string
+    assert 0.0 < result.tool_rms_error < 1e-3
+    assert feedback and list(feedback[-1].feedback.joint_names) == list(ARM_JOINT_NAMES)
+    final = probe.joint_states[-1]
+    probe.spin_until(lambda: probe.joint_states[-1] is not final, timeout=5.0)
+    np.testing.assert_allclose(probe.joint_states[-1].position, READY_POSTURE, atol=0.01)
+
+
+@pytest.mark.parametrize("case, goal, code, reason", [
+    ("unknown joint", goal_to([READY_POSTURE], [1.0], names=[*ARM_JOINT_NAMES[:6], "wrist"]),
+     Result.INVALID_JOINTS, "unknown joints"),
+    ("nan", goal_to([shifted(math.nan)], [1.0]), Result.INVALID_GOAL, "non-finite"),
+    ("non-increasing times", goal_to([shifted(0.1), shifted(0.2)], [1.0, 0.5]),
+     Result.INVALID_GOAL, "strictly increase"),
+    ("beyond limits", goal_to([shifted(3.5)], [5.0]), Result.INVALID_GOAL, "beyond its limits"),
+])
+def test_bad_goals_are_aborted_with_a_code_and_reason(probe, case, goal, code, reason):
+    result = probe.execute(goal).result
+    assert result.error_code == code, case
+    assert reason in result.error_string
+
+
+def test_new_goal_preempts_the_running_one(probe):
+    first = probe.send_goal(goal_to([shifted(0.5)], [4.0]))
+    first_result = first.get_result_async()
+    second = probe.execute(goal_to([READY_POSTURE], [2.0])).result
+    assert probe.wait_for(first_result).result.error_code == Result.PREEMPTED
+    assert second.error_code == Result.SUCCESSFUL, second.error_string
+
+
+def test_bad_goal_leaves_the_running_one_alone(probe):
+    # Slow enough (60 s simulated) to still be running when the refusal comes back.
+    running = probe.send_goal(goal_to([shifted(0.3), READY_POSTURE], [30.0, 60.0]))
+    running_result = running.get_result_async()
+    refused = probe.execute(goal_to([shifted(math.nan)], [1.0])).result
+    assert refused.error_code == Result.INVALID_GOAL
+    assert not running_result.done()
+    assert probe.wait_for(running_result).result.error_code == Result.SUCCESSFUL
+
+
+def test_cancel_is_accepted(probe):
+    handle = probe.send_goal(goal_to([shifted(0.5)], [20.0]))
+    assert handle.accepted
+    cancel = probe.wait_for(handle.cancel_goal_async())
+    assert len(cancel.goals_canceling) == 1
+    result = probe.wait_for(handle.get_result_async()).result
+    assert result.error_code == Result.CANCELED
+    probe.execute(goal_to([READY_POSTURE], [2.0]))
+
+
+def test_disturb_object_moves_the_ground_truth(probe):
+    probe.truth.clear()
+    assert probe.spin_until(lambda: bool(probe.truth))
+    before = probe.truth[-1].objects[0]
+    response = probe.call(probe.disturb, DisturbObject.Request(object_id="eraser", dx=0.0,
+                                                                dy=0.03, dtheta=0.0))
+    assert response.success, response.message
+    probe.truth.clear()
+    assert probe.spin_until(lambda: len(probe.truth) >= 2)
+    after = probe.truth[-1].objects[0]
+    assert after.y - before.y == pytest.approx(0.03, abs=1e-3)
+    refused = probe.call(probe.disturb, DisturbObject.Request(object_id="stapler", dx=0.01))
+    assert not refused.success and "unknown object 'stapler'" in refused.message
+
+
+def test_load_scenario_resets_the_world(probe):
+    bad = probe.call(probe.load_scenario, LoadScenario.Request(scenario="no_such_world", seed=-1))
+    assert not bad.success and "no_such_world" in bad.message
+    response = probe.call(probe.load_scenario, LoadScenario.Request(scenario="tset3", seed=-1))
+    assert response.success and response.scenario_name == "tset3"
+    probe.truth.clear()
+    assert probe.spin_until(lambda: bool(probe.truth))
+    assert sorted(o.object_class for o in probe.truth[-1].objects) == ["plate", "plate",
+                                                                       "platter"]
+
+
+def test_sigterm_shuts_the_node_down_cleanly(ros_env):
+    env = dict(ros_env, ROS_DOMAIN_ID=str(_free_domain_id()))
+    process = start_sim(env)
+    try:
+        time.sleep(5.0)
+        assert process.poll() is None, process.stderr.read()
+        returncode = stop(process, signal.SIGTERM)
+    finally:
+        stop(process, signal.SIGKILL)
+    stderr = process.stderr.read()
+    assert returncode == 0, stderr
+    assert "Traceback" not in stderr, stderr
