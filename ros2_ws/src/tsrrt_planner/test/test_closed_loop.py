@@ -1,0 +1,179 @@
+"""Learning in place keeps objects on the table; divergence is flagged only when unexplained."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tsrrt_common.geometry import Pose2D
+from tsrrt_common.scenario import load_scenario
+from tsrrt_planner.closed_loop import (
+    PredictionTracker,
+    PushOutcome,
+    TaskSettings,
+    learn_in_place,
+    run_task,
+    update_model_with_push,
+)
+from tsrrt_planner.lower_bound import lower_bound
+from tsrrt_planner.model_learning import (
+    ConfidenceStoppingRule,
+    DisplacementStats,
+    ForwardModel,
+    ModelStore,
+)
+from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.push_rule import SimulatedPusher, learn_all
+from tsrrt_planner.reachability import AnnulusReachability
+
+
+def _executor(pusher: SimulatedPusher):
+    def execute(object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        before = pusher.poses[object_id]
+        _, after = pusher.apply_action(object_id, primitive, push_length)
+        return PushOutcome(before, after)
+    return execute
+
+
+@pytest.mark.parametrize("object_id", ["scale", "remote", "eraser"])
+def test_learning_in_place_converges_and_stays_on_the_table(object_id: str) -> None:
+    scenario = load_scenario("clean")
+    spec = scenario.object(object_id)
+    pusher = SimulatedPusher(scenario.objects, seed=3)
+    visited = []
+
+    def execute(object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        outcome = _executor(pusher)(object_id, primitive, push_length)
+        visited.append(outcome.after)
+        return outcome
+
+    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
+                            toward=scenario.table.center)
+    assert result.converged
+    assert set(result.models) == {1, 2, 3, 4, 5, 6}
+    assert result.trials == len(visited)
+    x_min, y_min, x_max, y_max = scenario.table.bounds
+    for pose in visited:
+        assert x_min - 0.05 <= pose.x <= x_max + 0.05 and y_min - 0.05 <= pose.y <= y_max + 0.05
+    # Models point the way their primitive pushes.
+    assert result.models[1].mean[0] > 0 > result.models[2].mean[0]
+    assert result.models[3].mean[1] > 0 > result.models[4].mean[1]
+    assert result.models[5].mean[2] > 0 > result.models[6].mean[2]
+
+
+def test_disc_learns_only_translation_primitives() -> None:
+    scenario = load_scenario("tset3")
+    spec = scenario.object("plate_1")
+    pusher = SimulatedPusher(scenario.objects, seed=1)
+    result = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule(),
+                            toward=scenario.table.center)
+    assert set(result.models) == {1, 2, 3, 4}
+
+
+def test_learning_stops_when_cancelled() -> None:
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    pusher = SimulatedPusher(scenario.objects, seed=0)
+    calls = []
+    result = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule(),
+                            toward=scenario.table.center, cancelled=lambda: len(calls) > 0,
+                            on_trial=calls.append)
+    assert result.trials == 1 and not result.converged
+
+
+def test_executed_push_updates_model_with_eq9_at_nominal_length() -> None:
+    deltas = np.array([[0.040, 0.001, 0.01], [0.042, -0.002, 0.0], [0.038, 0.0, -0.01]])
+    statistics = DisplacementStats()
+    for delta in deltas:
+        statistics.update(delta)
+    store = ModelStore([ForwardModel.from_stats("eraser", 1, 0.05, statistics)],
+                       {"eraser": "eraser"})
+    before = Pose2D(0.4, 0.0, 0.3)
+    observed = np.array([0.020, 0.001, 0.005])  # a 2.5 cm push
+    after = before.apply_displacement(observed)
+    update_model_with_push(store, "eraser", "eraser", 1, 0.025, PushOutcome(before, after))
+    all_deltas = np.vstack([deltas, observed * 2.0])
+    model = store.get("eraser", 1)
+    np.testing.assert_allclose(model.mean, all_deltas.mean(axis=0), atol=1e-12)
+    np.testing.assert_allclose(model.variance, all_deltas.var(axis=0), atol=1e-12)
+
+
+def test_divergence_uses_accumulated_uncertainty_and_flags_unpushed_motion() -> None:
+    scenario = load_scenario("clean")
+    statistics = DisplacementStats()
+    for dx in (0.040, 0.044, 0.036, 0.040):
+        statistics.update(np.array([dx, 0.0, 0.0]))
+    model = ForwardModel.from_stats("eraser", 1, 0.05, statistics)  # sigma ~2.8 mm in x
+    tracker = PredictionTracker(scenario.objects, sigmas=3.0, position_floor=0.004,
+                                angle_floor=math.radians(2.0))
+    predicted = {o.id: o.pose for o in scenario.objects}
+    tracker.pushed("eraser", model, 0.05)
+    eraser = predicted["eraser"]
+    within = dict(predicted, eraser=Pose2D(eraser.x + 0.010, eraser.y, eraser.theta))
+    assert tracker.diverged(predicted, within) == []
+    beyond = dict(predicted, eraser=Pose2D(eraser.x + 0.02, eraser.y, eraser.theta))
+    [problem] = tracker.diverged(predicted, beyond)
+    assert problem.object_id == "eraser" and problem.reason == "outside the model's confidence"
+    remote = predicted["remote"]
+    bumped = dict(predicted, remote=Pose2D(remote.x, remote.y + 0.006, remote.theta))
+    [problem] = tracker.diverged(predicted, bumped)
+    assert problem.object_id == "remote" and problem.reason == "moved although not pushed"
+    # A half turn of a box is no change at all.
+    flipped = dict(predicted, remote=Pose2D(remote.x, remote.y, remote.theta + math.pi))
+    assert tracker.diverged(predicted, flipped) == []
+    missing = {k: v for k, v in predicted.items() if k != "scale"}
+    [problem] = tracker.diverged(predicted, missing)
+    assert problem.reason == "not observed"
+
+
+class _SimulatedRobot:
+    """A physics-free robot for the task loop: the plausible push rule with noise, plus bumps."""
+
+    def __init__(self, scenario, seed: int, bump_after: int | None = None) -> None:
+        self.pusher = SimulatedPusher(scenario.objects, seed=seed)
+        self.bump_after = bump_after
+        self.pushes = 0
+
+    def observe(self) -> dict[str, Pose2D]:
+        return dict(self.pusher.poses)
+
+    def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        before = self.pusher.poses[object_id]
+        _, after = self.pusher.apply_action(object_id, primitive, push_length)
+        self.pushes += 1
+        if self.pushes == self.bump_after:
+            # Someone bumps the table: another object slides 2 cm.
+            other = next(i for i in self.pusher.poses if i != object_id)
+            pose = self.pusher.poses[other]
+            self.pusher.poses[other] = Pose2D(pose.x - 0.02, pose.y, pose.theta)
+        return PushOutcome(before, after)
+
+
+def _task(name: str, seed: int, bump_after: int | None = None):
+    scenario = load_scenario(name)
+    store = learn_all(scenario.objects, seed=seed)
+    problem = PlanningProblem(scenario, store, AnnulusReachability())
+    bound = lower_bound(problem, starts=8, seed=0)
+    robot = _SimulatedRobot(scenario, seed=seed + 100, bump_after=bump_after)
+    settings = TaskSettings(planning_budget_s=1.0, max_pushes=60)
+    report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound.cost,
+                      target=bound.state)
+    return scenario, report
+
+
+def test_task_loop_lowers_the_cost_and_converges() -> None:
+    _, report = _task("tset3", seed=0)
+    assert report.stop_reason in ("converged", "push budget")
+    assert report.pushes > 0
+    assert report.final_cost < report.start_cost
+    assert len(report.costs) == report.pushes + 1
+    assert len(report.visited) == report.pushes + 1
+
+
+def test_task_loop_replans_after_a_bump() -> None:
+    _, report = _task("tset3", seed=0, bump_after=2)
+    assert report.replans >= 1
+    assert any(d.reason == "moved although not pushed" for d in report.divergences)
+    assert report.final_cost < report.start_cost

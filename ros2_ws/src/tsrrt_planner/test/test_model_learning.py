@@ -1,0 +1,180 @@
+"""Eq. 9 statistics, stopping rules, LEARN_MODEL (Fig. 2) and the model file."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from tsrrt_common.geometry import Pose2D
+from tsrrt_common.scenario import load_scenario
+from tsrrt_planner.errors import ModelError, ModelFileError
+from tsrrt_planner.model_learning import (
+    LEARN_MODEL,
+    ConfidenceStoppingRule,
+    DisplacementStats,
+    ForwardModel,
+    ModelStore,
+    PaperStoppingRule,
+)
+from tsrrt_planner.push_rule import SimulatedPusher, learn_all, plausible_displacement
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_eq9_matches_numpy_mean_and_variance(seed):
+    rng = np.random.default_rng(seed)
+    samples = rng.normal([0.05, 0.002, 0.3], [0.004, 0.002, 0.05], (57, 3)) + 1e3 * (seed == 2)
+    statistics = DisplacementStats()
+    for sample in samples:
+        statistics.update(sample)
+    np.testing.assert_allclose(statistics.mean, samples.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(statistics.variance, samples.var(axis=0), rtol=1e-9)
+    np.testing.assert_allclose(statistics.sample_variance, samples.var(axis=0, ddof=1), rtol=1e-9)
+
+
+def test_non_finite_displacement_is_rejected():
+    with pytest.raises(ModelError, match="finite"):
+        DisplacementStats().update([np.nan, 0.0, 0.0])
+
+
+def stats_of(samples) -> DisplacementStats:
+    statistics = DisplacementStats()
+    for sample in samples:
+        statistics.update(sample)
+    return statistics
+
+
+def test_paper_rule_reads_sigma_ref_in_cm_and_degrees():
+    rule = PaperStoppingRule(max_trials=100)
+    # sigma = 5 mm (0.25 cm^2 < 0.4) and 0.5 deg: done
+    calm = stats_of([[0.05 + d, 0.0, np.deg2rad(d * 100)] for d in (-0.005, 0.005)])
+    assert rule.done(calm)
+    # sigma = 8 mm: 0.64 cm^2 > 0.4, keeps trying
+    noisy = stats_of([[0.05 + d, 0.0, 0.0] for d in (-0.008, 0.008)])
+    assert not rule.done(noisy)
+    assert not rule.done(stats_of([[0.05, 0.0, 0.0]]))  # one sample has no variance yet
+
+
+def test_confidence_rule_stops_when_the_mean_is_known():
+    rule = ConfidenceStoppingRule(min_trials=3, max_trials=50)
+    rng = np.random.default_rng(0)
+    statistics = DisplacementStats()
+    while not rule.done(statistics):
+        statistics.update(rng.normal([0.05, 0, 0], [0.005, 0.002, 0.01]))
+    assert 3 <= statistics.count < 50
+    assert np.all(statistics.mean_half_width() <= [0.003, 0.003, np.deg2rad(1.0)])
+
+
+def test_rules_stop_at_max_trials():
+    statistics = stats_of(np.random.default_rng(1).normal(0, 1.0, (10, 3)))
+    assert PaperStoppingRule(max_trials=10).done(statistics)
+    assert ConfidenceStoppingRule(max_trials=10).done(statistics)
+    with pytest.raises(ModelError):
+        ConfidenceStoppingRule(min_trials=5, max_trials=4)
+
+
+def test_learn_model_recovers_the_pushing_rule():
+    scenario = load_scenario("clean")
+    remote = scenario.object("remote")
+    pusher = SimulatedPusher(scenario.objects, seed=3)
+    models, pose = LEARN_MODEL("remote", [1, 2, 3, 4, 5, 6], remote.pose, pusher.apply_action)
+    assert set(models) == {1, 2, 3, 4, 5, 6}
+    assert pose == pusher.poses["remote"] and pose != remote.pose
+    for primitive, model in models.items():
+        expected = plausible_displacement(remote, primitive, 0.05)
+        tolerance = 3 * np.sqrt(model.variance / model.count) + 1e-9
+        assert np.all(np.abs(model.mean - expected) <= tolerance)
+
+
+def test_learn_model_uses_apply_action_until_rule_is_done():
+    calls = []
+
+    def apply_action(object_id, primitive, length):
+        calls.append((object_id, primitive, length))
+        return np.array([0.04, 0.0, 0.0]), Pose2D(0.0, 0.0, 0.0)
+
+    models, _ = LEARN_MODEL("o", [1, 3], Pose2D(0, 0, 0), apply_action,
+                            PaperStoppingRule(min_trials=4), push_length=0.03)
+    assert calls == [("o", 1, 0.03)] * 4 + [("o", 3, 0.03)] * 4
+    assert models[1].count == 4 and models[1].push_length == 0.03
+
+
+def test_prediction_scales_linearly_with_push_length():
+    model = ForwardModel("o", 1, 0.05, 5, np.array([0.045, 0.002, 0.01]), np.zeros(3))
+    np.testing.assert_allclose(model.predict(0.02), [0.018, 0.0008, 0.004])
+    with pytest.raises(ModelError, match="outside"):
+        model.predict(0.5)
+
+
+@pytest.fixture
+def store() -> ModelStore:
+    return learn_all(load_scenario("tset3").objects, seed=1)
+
+
+def test_model_file_round_trip(tmp_path, store):
+    path = tmp_path / "models.yaml"
+    store.save(path)
+    loaded = ModelStore.load(path)
+    assert loaded.classes == store.classes
+    assert set(loaded.models) == set(store.models)
+    for key, model in store.models.items():
+        other = loaded.models[key]
+        assert other.count == model.count and other.push_length == model.push_length
+        np.testing.assert_allclose(other.mean, model.mean, rtol=1e-15)
+        np.testing.assert_allclose(other.m2, model.m2, rtol=1e-15)
+    scenario = load_scenario("tset3")
+    loaded.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects])
+
+
+def test_atomic_write_leaves_old_file_when_writing_fails(tmp_path, store, monkeypatch):
+    path = tmp_path / "models.yaml"
+    store.save(path)
+    before = path.read_text()
+
+    def broken_replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", broken_replace)
+    with pytest.raises(OSError, match="disk full"):
+        ModelStore([next(iter(store.models.values()))]).save(path)
+    assert path.read_text() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["models.yaml"]  # no temp file left
+
+
+@pytest.mark.parametrize("mutate,message", [
+    (lambda d: "not: [valid", "not valid YAML"),
+    (lambda d: {**d, "version": 7}, "unsupported version 7"),
+    (lambda d: {**d, "format": "other"}, "format"),
+    (lambda d: {**d, "objects": {}}, "objects"),
+])
+def test_corrupt_files_raise_and_are_left_untouched(tmp_path, store, mutate, message):
+    path = tmp_path / "models.yaml"
+    mutated = mutate(store.to_document())
+    text = mutated if isinstance(mutated, str) else yaml.safe_dump(mutated)
+    path.write_text(text)
+    with pytest.raises(ModelFileError, match=message):
+        ModelStore.load(path)
+    assert path.read_text() == text
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("count", 0, "count"), ("mean", [0.0, 1.0], "mean"), ("m2", [-1.0, 0.0, 0.0], "negative"),
+    ("push_length", 2.0, "push_length"), ("mean", [0.0, float("nan"), 0.0], "mean")])
+def test_bad_model_fields_are_named(tmp_path, store, field, value, message):
+    document = store.to_document()
+    first = next(iter(document["objects"].values()))["primitives"]
+    next(iter(first.values()))[field] = value
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(document))
+    with pytest.raises(ModelFileError, match=message):
+        ModelStore.load(path)
+
+
+def test_mismatched_models_are_an_error(store):
+    scenario = load_scenario("tset6")
+    with pytest.raises(ModelFileError, match="plate_3: no models"):
+        store.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects])
+    with pytest.raises(ModelFileError, match="models are for class 'plate'"):
+        store.check_covers([("plate_1", "platter", "box")])

@@ -1,0 +1,163 @@
+"""Planner invariants (Fig. 4): valid states, model-consistent paths, anytime, determinism."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tsrrt_common.scenario import load_scenario
+from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.lower_bound import local_minimum, lower_bound
+from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.push_rule import learn_all
+from tsrrt_planner.task_space_rrt import (
+    MODES,
+    TASK_SPACE_RRT,
+    interchangeable_groups,
+    match_to,
+)
+
+
+@pytest.fixture(scope="module")
+def problem() -> PlanningProblem:
+    scenario = load_scenario("tset3")
+    return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+
+
+@pytest.fixture(scope="module")
+def bound(problem):
+    return lower_bound(problem, starts=4)
+
+
+def replay(problem: PlanningProblem, result) -> np.ndarray:
+    """States of the plan recomputed from the models, checking every push on the way."""
+    index = {object_id: i for i, object_id in enumerate(problem.objects.ids)}
+    state, states = problem.start, [problem.start]
+    for step in result.steps:
+        o = index[step.object_id]
+        assert problem.pushes_valid(state, np.array([o]), np.array([step.primitive]),
+                                    np.array([step.push_length]))[0], step
+        state = problem.apply(state, o, step.primitive, step.push_length)
+        states.append(state)
+    return np.array(states)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_plans_are_valid_and_consistent_with_the_models(problem, bound, mode):
+    result = TASK_SPACE_RRT(problem, mode, seed=1, time_budget_s=None, max_nodes=150,
+                            lower_bound_cost=bound.cost, target=bound.state)
+    states = replay(problem, result)
+    np.testing.assert_allclose(result.states, states, atol=1e-12)
+    x_min, y_min, x_max, y_max = problem.scenario.table.bounds
+    for state in states:
+        assert problem.state_valid(state)
+        assert np.all((state[:, 0] > x_min) & (state[:, 0] < x_max))
+        assert np.all((state[:, 1] > y_min) & (state[:, 1] < y_max))
+    np.testing.assert_allclose(result.costs, problem.objective.cost(states))
+    assert result.best_cost <= result.costs[0]
+    assert result.stop_reason in ("nodes", "converged")
+    assert result.nodes <= 150
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_anytime_best_is_monotone(problem, bound, mode):
+    result = TASK_SPACE_RRT(problem, mode, seed=2, time_budget_s=None, max_nodes=120,
+                            lower_bound_cost=bound.cost, target=bound.state)
+    times, nodes, costs = map(np.array, zip(*result.trace, strict=True))
+    assert np.all(np.diff(costs) < 0)
+    assert np.all(np.diff(times) >= 0) and np.all(np.diff(nodes) > 0)
+
+
+@pytest.mark.parametrize("mode", ["paper", "tsrrt"])
+def test_deterministic_for_a_seed(problem, bound, mode):
+    runs = [TASK_SPACE_RRT(problem, mode, seed=seed, time_budget_s=None, max_nodes=100,
+                           target=bound.state) for seed in (5, 5, 6)]
+    assert runs[0].steps == runs[1].steps
+    np.testing.assert_array_equal(runs[0].states, runs[1].states)
+    assert runs[0].steps != runs[2].steps or mode == "tsrrt"
+
+
+def test_improved_mode_reaches_the_bound_on_tset3(problem, bound):
+    result = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=600,
+                            lower_bound_cost=bound.cost, target=bound.state)
+    assert result.gap() < 0.02
+
+
+def test_cancel_and_progress(problem):
+    event = threading.Event()
+    seen = []
+
+    def progress(info):
+        seen.append(info)
+        if info.nodes >= 30:
+            event.set()
+
+    result = TASK_SPACE_RRT(problem, "paper-nogd", seed=0, time_budget_s=30.0,
+                            progress=progress, cancel=event)
+    assert result.stop_reason == "cancelled"
+    assert seen and all(b.elapsed_s >= a.elapsed_s for a, b in zip(seen, seen[1:], strict=False))
+    result = TASK_SPACE_RRT(problem, "paper-nogd", seed=0, time_budget_s=30.0,
+                            cancel=lambda: True)
+    assert result.stop_reason == "cancelled" and len(result.steps) == 0
+
+
+def test_time_budget_stops(problem):
+    result = TASK_SPACE_RRT(problem, "paper-nogd", seed=0, time_budget_s=0.2)
+    assert result.stop_reason == "time" and result.elapsed_s < 2.0
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"mode": "astar"}, "unknown planner mode"),
+    ({"time_budget_s": None}, "give a time budget"),
+    ({"time_budget_s": -1.0}, "time budget must be > 0"),
+    ({"max_nodes": 0}, "node budget"),
+    ({"target": np.zeros((2, 3))}, "target must have shape"),
+])
+def test_bad_arguments(problem, kwargs, message):
+    with pytest.raises(PlannerError, match=message):
+        TASK_SPACE_RRT(problem, **kwargs)
+
+
+def test_overlapping_start_is_rejected():
+    scenario = load_scenario("tset3")
+    models = learn_all(scenario.objects)
+    moved = replace(scenario, objects=tuple(replace(o, pose=scenario.objects[0].pose)
+                                            for o in scenario.objects))
+    with pytest.raises(PlannerError, match="start state violates"):
+        PlanningProblem(moved, models)
+
+
+def test_lower_bound_is_feasible_and_below_start(problem, bound):
+    assert problem.state_valid(bound.state + 0.0) or problem.checker.constraint_values(
+        bound.state).min() > -1e-5
+    assert bound.cost <= problem.objective.cost(problem.start)
+    state, cost, feasible = local_minimum(problem, problem.start)
+    assert feasible and cost <= problem.objective.cost(problem.start) + 1e-12
+
+
+def test_matching_permutes_only_interchangeable_objects(problem):
+    groups = interchangeable_groups(problem)
+    assert [list(g) for g in groups] == [[0, 1]]  # the two plates
+    target = problem.start[[1, 0, 2]]
+    np.testing.assert_array_equal(match_to(groups, target, problem.start), problem.start)
+
+
+def test_push_constraints_reject_unreachable_and_blocked_pushes(problem):
+    from tsrrt_planner.reachability import AnnulusReachability
+
+    state = problem.start.copy()
+    objects, primitives = problem.action_objects, problem.action_primitives
+    lengths = np.full(len(objects), 0.01)
+    assert problem.pushes_valid(state, objects, primitives, lengths).any()
+    far = PlanningProblem(problem.scenario, learn_all(problem.scenario.objects),
+                          reachability=AnnulusReachability(0.9, 1.0))
+    assert not far.pushes_valid(state, objects, primitives, lengths).any()
+    # put plate_2 right beside plate_1 along the direction primitive 2 pushes plate_1
+    u = problem.push_directions(state, np.array([0]), np.array([2]))[0]
+    state[1, :2] = state[0, :2] + 0.11 * u[:2] / np.linalg.norm(u[:2])
+    assert problem.state_valid(state)
+    assert problem.pushes_valid(state, np.array([0]), np.array([2]), np.array([0.002]))[0]
+    assert not problem.pushes_valid(state, np.array([0]), np.array([2]), np.array([0.05]))[0]

@@ -1,0 +1,175 @@
+"""Planner benchmark: every planner on the same scenario, models, constraints and lower bound.
+
+    python -m tsrrt_planner.bench --scenario tset6 \
+        --planners paper,paper-nogd,tsrrt,greedy,ompl-sst --seeds 5 --budget-s 10 \
+        --json out/bench_tset6.json
+
+Prints one row per planner (medians over seeds): time and nodes to <= 5 % and <= 1 % gap
+("never" when the median run never got there), gap at 1 s and at the budget, nodes per second,
+pushes in the returned plan. The JSON holds `lower_bound` and one `results` entry per planner
+and seed. Forward models come from data/models/<scenario name>.yaml unless --models is given.
+"""
+
+from __future__ import annotations
+
+import os
+
+# The planners do many tiny dense solves; threaded BLAS only adds overhead (10x for SLSQP here).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import statistics  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from importlib import resources  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+from tsrrt_common.scenario import Scenario, load_scenario  # noqa: E402
+from tsrrt_planner.errors import PlannerError  # noqa: E402
+from tsrrt_planner.lower_bound import lower_bound  # noqa: E402
+from tsrrt_planner.model_learning import ModelStore  # noqa: E402
+from tsrrt_planner.problem import PlanningProblem  # noqa: E402
+from tsrrt_planner.task_space_rrt import MODES, TASK_SPACE_RRT, PlanResult  # noqa: E402
+
+OMPL_PLANNERS = ("ompl-sst", "ompl-rrt")
+
+
+def resolve_scenario(name_or_path: str) -> Scenario:
+    """A shipped scenario, a benchmark scenario of this package (data/scenarios), or a path."""
+    bundled = resources.files("tsrrt_planner").joinpath("data", "scenarios",
+                                                        f"{name_or_path}.yaml")
+    if bundled.is_file():
+        return load_scenario(Path(str(bundled)))
+    return load_scenario(name_or_path)
+
+
+def default_models(scenario: Scenario) -> Path:
+    path = Path(str(resources.files("tsrrt_planner").joinpath(
+        "data", "models", f"{scenario.name}.yaml")))
+    if not path.is_file():
+        raise PlannerError(f"no model file for scenario {scenario.name!r} at {path}; make one "
+                           f"with `python -m tsrrt_planner.push_rule --scenario ... --out {path}`"
+                           " or pass --models")
+    return path
+
+
+def time_and_nodes_to(result: PlanResult, gap: float) -> tuple[float | None, int | None]:
+    for elapsed, nodes, cost in result.trace:
+        if result.gap(cost) <= gap:
+            return elapsed, nodes
+    return None, None
+
+
+def gap_at(result: PlanResult, seconds: float) -> float:
+    cost = result.trace[0][2]
+    for elapsed, _, value in result.trace:
+        if elapsed <= seconds:
+            cost = value
+    return result.gap(cost)
+
+
+def run_planner(problem: PlanningProblem, planner: str, seed: int, budget_s: float,
+                bound: Any) -> PlanResult:
+    if planner in OMPL_PLANNERS:
+        from tsrrt_planner.ompl_baseline import plan_with_ompl
+        return plan_with_ompl(problem, planner.removeprefix("ompl-"), seed, budget_s,
+                              bound.cost)
+    return TASK_SPACE_RRT(problem, planner, seed, time_budget_s=budget_s,
+                          lower_bound_cost=bound.cost, target=bound.state)
+
+
+def summarise(result: PlanResult) -> dict[str, Any]:
+    t5, n5 = time_and_nodes_to(result, 0.05)
+    t1, n1 = time_and_nodes_to(result, 0.01)
+    return {"planner": result.mode, "seed": result.seed, "time_to_5pct_s": t5,
+            "time_to_1pct_s": t1, "nodes_to_5pct": n5, "nodes_to_1pct": n1,
+            "gap_at_1s": gap_at(result, 1.0), "gap_final": result.gap(),
+            "nodes_per_s": result.nodes / max(result.elapsed_s, 1e-9),
+            "pushes": len(result.steps), "final_cost": result.best_cost,
+            "elapsed_s": result.elapsed_s}
+
+
+def median_or_never(values: list[float | None]) -> float | None:
+    """Median with 'never' (None) counted as infinitely late."""
+    numbers = sorted(math.inf if v is None else v for v in values)
+    middle = statistics.median(numbers)
+    return None if math.isinf(middle) else middle
+
+
+def table(rows: list[dict[str, Any]], planners: Sequence[str]) -> str:
+    header = (f"{'planner':<11} {'t<=5%':>8} {'n<=5%':>7} {'t<=1%':>8} {'n<=1%':>7} "
+              f"{'gap@1s':>8} {'gap@end':>8} {'nodes/s':>8} {'pushes':>6}")
+    lines = [header, "-" * len(header)]
+
+    def show(value: float | None, fmt: str) -> str:
+        return "never" if value is None else format(value, fmt)
+
+    for planner in planners:
+        mine = [r for r in rows if r["planner"] == planner]
+        if not mine:
+            continue
+        t5 = median_or_never([r["time_to_5pct_s"] for r in mine])
+        lines.append(
+            f"{planner:<11} {show(t5, '.3f'):>8} "
+            f"{show(median_or_never([r['nodes_to_5pct'] for r in mine]), '.0f'):>7} "
+            f"{show(median_or_never([r['time_to_1pct_s'] for r in mine]), '.3f'):>8} "
+            f"{show(median_or_never([r['nodes_to_1pct'] for r in mine]), '.0f'):>7} "
+            f"{statistics.median(r['gap_at_1s'] for r in mine):>8.2%} "
+            f"{statistics.median(r['gap_final'] for r in mine):>8.2%} "
+            f"{statistics.median(r['nodes_per_s'] for r in mine):>8.0f} "
+            f"{statistics.median(r['pushes'] for r in mine):>6.0f}")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Benchmark the task-space planners.")
+    parser.add_argument("--scenario", required=True, help="scenario name or YAML path")
+    parser.add_argument("--planners", default="paper,paper-nogd,tsrrt,greedy,ompl-rrt")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--budget-s", type=float, default=10.0)
+    parser.add_argument("--models", type=Path, help="model file (default: shipped for scenario)")
+    parser.add_argument("--json", type=Path, help="write the results here")
+    parser.add_argument("--lb-starts", type=int, default=16)
+    args = parser.parse_args(argv)
+    planners = [p.strip() for p in args.planners.split(",") if p.strip()]
+    unknown = [p for p in planners if p not in MODES + OMPL_PLANNERS]
+    if unknown:
+        parser.error(f"unknown planners {unknown}; known: {list(MODES + OMPL_PLANNERS)}")
+    if args.seeds < 1 or not args.budget_s > 0:
+        parser.error("--seeds must be >= 1 and --budget-s > 0")
+    scenario = resolve_scenario(args.scenario)
+    models = ModelStore.load(args.models or default_models(scenario))
+    problem = PlanningProblem(scenario, models)
+    bound = lower_bound(problem, starts=args.lb_starts)
+    start_cost = float(problem.objective.cost(problem.start))
+    print(f"scenario {scenario.name}: {problem.n} objects ({3 * problem.n} DOF), start cost "
+          f"{start_cost:.4f}, lower bound {bound.cost:.4f} ({bound.feasible_starts}/"
+          f"{bound.starts} feasible starts, {bound.seconds:.1f} s); budget {args.budget_s} s, "
+          f"{args.seeds} seeds", flush=True)
+    rows, skipped = [], []
+    for planner in planners:
+        for seed in range(args.seeds):
+            try:
+                result = run_planner(problem, planner, seed, args.budget_s, bound)
+            except PlannerError as error:
+                skipped.append(f"{planner}: {error}")
+                break
+            rows.append(summarise(result))
+            print(f"  {planner} seed {seed}: gap {rows[-1]['gap_final']:.2%}, "
+                  f"{rows[-1]['pushes']} pushes", flush=True)
+    print(table(rows, planners))
+    for line in skipped:
+        print(f"not run: {line}")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({
+            "scenario": scenario.name, "budget_s": args.budget_s, "seeds": args.seeds,
+            "lower_bound": bound.cost, "start_cost": start_cost, "not_run": skipped,
+            "results": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

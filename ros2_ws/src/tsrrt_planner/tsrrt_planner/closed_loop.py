@@ -1,0 +1,363 @@
+"""The robot's side of the paper's loop, free of ROS: learning in place and noticing divergence.
+
+Two decisions the paper leaves open, made here (repeated in docs/planner.md):
+
+* Learning keeps the object in the workspace (a real robot cannot teleport it back). Fig. 2 tries
+  each primitive until its stopping rule holds, which walks the object off the table after a few
+  pushes. `learn_in_place` instead applies the primitives in opposing pairs (1 with 2, 3 with 4,
+  5 with 6), each pair in the order whose first push moves the object towards the table centre,
+  until every primitive's rule holds. Every push still updates its own primitive's distribution
+  exactly as Eq. 9 says; only the order of trials differs from Fig. 2.
+* Convergence: the task is done when a fresh plan from the observed state predicts less than
+  `convergence` relative improvement, or when pushes, time or cancellation end it first.
+* Divergence: after each executed push the observed state is compared with the plan's prediction.
+  The prediction's uncertainty grows with every push an object received since the plan started
+  (variances of independent pushes add), so an object has diverged when its position error exceeds
+  `sigmas` times the accumulated standard deviation plus the perception floor, or its heading error
+  (modulo symmetry) likewise. An object that the plan did not push but that moved beyond the floor
+  was disturbed. Either triggers a replan from the observed state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from tsrrt_common.geometry import Pose2D, angle_difference_modulo_symmetry
+from tsrrt_common.scenario import ObjectSpec, Scenario
+from tsrrt_executor.push_primitives import DEFAULT_PUSH_LENGTH, primitives_for
+from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.model_learning import (
+    DisplacementStats,
+    ForwardModel,
+    ModelStore,
+    StoppingRule,
+)
+from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.reachability import Reachability
+from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress
+
+OPPOSING_PAIRS: tuple[tuple[int, int], ...] = ((1, 2), (3, 4), (5, 6))
+# Direction of each primitive's intended motion in the object frame (rotation: sign only).
+_INTENDED_DIRECTION = {1: (1.0, 0.0), 2: (-1.0, 0.0), 3: (0.0, 1.0), 4: (0.0, -1.0)}
+
+
+class ExecutionFailed(PlannerError):
+    """A push could not be executed; `code` is the ExecutePrimitive result code."""
+
+    def __init__(self, code: int, message: str) -> None:
+        self.code = code
+        super().__init__(message)
+
+
+@dataclass(frozen=True)
+class PushOutcome:
+    """Settled observations of the pushed object before and after one push."""
+
+    before: Pose2D
+    after: Pose2D
+
+    @property
+    def displacement(self) -> np.ndarray:
+        """Δs (3,) in the object frame at `before`, the quantity Eq. 9 averages."""
+        return self.before.displacement_in_object_frame(self.after)
+
+
+# EXECUTE(object_id, primitive, push_length) -> PushOutcome, raising ExecutionFailed.
+Execute = Callable[[str, int, float], PushOutcome]
+
+
+@dataclass
+class LearningProgress:
+    """What `learn_in_place` reports after every trial."""
+
+    object_id: str
+    primitive: int
+    trials: int
+    sigma: np.ndarray  # (3,) current standard deviation of that primitive's displacement
+
+
+@dataclass
+class LearningResult:
+    models: dict[int, ForwardModel]
+    trials: int
+    pose: Pose2D
+    converged: bool
+    statistics: dict[int, DisplacementStats] = field(default_factory=dict)
+
+
+def _pair_order(pair: tuple[int, int], pose: Pose2D, toward: tuple[float, float]
+                ) -> tuple[int, int]:
+    """The pair ordered so that its first push moves the object towards `toward`."""
+    first, second = pair
+    if first not in _INTENDED_DIRECTION:
+        return pair  # rotations: either order leaves the position nearly where it was
+    direction = pose.transform_point_to_world(np.array(_INTENDED_DIRECTION[first])) - np.array(
+        [pose.x, pose.y])
+    to_target = np.array(toward) - np.array([pose.x, pose.y])
+    return pair if float(direction @ to_target) >= 0.0 else (second, first)
+
+
+def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: StoppingRule,
+                   toward: tuple[float, float], push_length: float = DEFAULT_PUSH_LENGTH,
+                   max_rounds: int = 40,
+                   on_trial: Callable[[LearningProgress], None] | None = None,
+                   cancelled: Callable[[], bool] = lambda: False) -> LearningResult:
+    """LEARN_MODEL (Fig. 2) for one object, trials ordered so the object stays in the workspace.
+
+    Args:
+        spec: the object (its shape decides which primitives exist).
+        pose: its observed pose now.
+        execute: executes one push and returns the settled observations around it.
+        rule: the stopping rule applied to each primitive.
+        toward: point (x, y) the first push of each pair heads for, normally the table centre.
+        push_length: the nominal push length the models are learned at.
+        max_rounds: rounds of all pairs before giving up on convergence.
+        on_trial: progress callback after every push.
+        cancelled: polled between pushes.
+
+    Returns:
+        Models of every primitive, the trial count, the last pose and whether every rule holds.
+    """
+    primitives = primitives_for(spec.shape)
+    statistics = {p: DisplacementStats() for p in primitives}
+    pairs = [pair for pair in OPPOSING_PAIRS if pair[0] in primitives]
+    trials = 0
+    for _ in range(max_rounds):
+        if all(rule.done(statistics[p]) for p in primitives):
+            break
+        for pair in pairs:
+            if rule.done(statistics[pair[0]]) and rule.done(statistics[pair[1]]):
+                continue
+            for primitive in _pair_order(pair, pose, toward):
+                if cancelled():
+                    return LearningResult(_models(spec, statistics, push_length), trials, pose,
+                                          False, statistics)
+                outcome = execute(spec.id, primitive, push_length)
+                statistics[primitive].update(outcome.displacement)
+                pose = outcome.after
+                trials += 1
+                if on_trial is not None:
+                    on_trial(LearningProgress(spec.id, primitive, trials,
+                                              np.sqrt(statistics[primitive].variance)))
+    converged = all(rule.done(statistics[p]) for p in primitives)
+    return LearningResult(_models(spec, statistics, push_length), trials, pose, converged,
+                          statistics)
+
+
+def _models(spec: ObjectSpec, statistics: Mapping[int, DisplacementStats],
+            push_length: float) -> dict[int, ForwardModel]:
+    return {p: ForwardModel.from_stats(spec.id, p, push_length, s)
+            for p, s in statistics.items() if s.count > 0}
+
+
+def update_model_with_push(store: ModelStore, object_class: str, object_id: str, primitive: int,
+                           push_length: float, outcome: PushOutcome) -> None:
+    """Fold an executed plan push into its model (Eq. 9), rescaled to the nominal push length.
+
+    The planner scales displacement linearly with push length, so a push of another length is
+    brought to the model's nominal length before it is averaged in.
+    """
+    model = store.get(object_id, primitive)
+    statistics = DisplacementStats(model.count, model.mean.copy(), model.m2.copy())
+    statistics.update(outcome.displacement * (model.push_length / push_length))
+    store.add(ForwardModel.from_stats(object_id, primitive, model.push_length, statistics),
+              object_class)
+
+
+@dataclass(frozen=True)
+class Divergence:
+    object_id: str
+    position_error: float
+    angle_error: float
+    reason: str
+
+
+@dataclass
+class PredictionTracker:
+    """Accumulated prediction uncertainty per object since the plan started."""
+
+    specs: Sequence[ObjectSpec]
+    sigmas: float = 3.0
+    position_floor: float = 0.004   # perception noise plus settling, metres
+    angle_floor: float = math.radians(2.0)
+    position_variance: dict[str, float] = field(default_factory=dict)
+    angle_variance: dict[str, float] = field(default_factory=dict)
+
+    def pushed(self, object_id: str, model: ForwardModel, push_length: float) -> None:
+        """Add one push's variance (scaled to its length) to the object's prediction."""
+        scale = (push_length / model.push_length) ** 2
+        variance = model.variance * scale
+        self.position_variance[object_id] = self.position_variance.get(object_id, 0.0) + float(
+            max(variance[0], variance[1]))
+        self.angle_variance[object_id] = self.angle_variance.get(object_id, 0.0) + float(
+            variance[2])
+
+    def diverged(self, predicted: Mapping[str, Pose2D], observed: Mapping[str, Pose2D]
+                 ) -> list[Divergence]:
+        """Objects whose observed pose is not explained by the prediction and its uncertainty."""
+        problems = []
+        for spec in self.specs:
+            if spec.id not in observed:
+                problems.append(Divergence(spec.id, math.inf, math.inf, "not observed"))
+                continue
+            want, seen = predicted[spec.id], observed[spec.id]
+            position_error = math.hypot(seen.x - want.x, seen.y - want.y)
+            angle_error = abs(angle_difference_modulo_symmetry(seen.theta, want.theta,
+                                                               spec.symmetry))
+            position_limit = self.position_floor + self.sigmas * math.sqrt(
+                self.position_variance.get(spec.id, 0.0))
+            angle_limit = self.angle_floor + self.sigmas * math.sqrt(
+                self.angle_variance.get(spec.id, 0.0))
+            if position_error > position_limit or angle_error > angle_limit:
+                reason = ("moved although not pushed" if spec.id not in self.position_variance
+                          else "outside the model's confidence")
+                problems.append(Divergence(spec.id, position_error, angle_error, reason))
+        return problems
+
+
+# ----------------------------------------------------------------------------------- the task
+class TaskEnvironment(Protocol):
+    """What the task loop needs from the robot: settled observations and pushes."""
+
+    def observe(self) -> dict[str, Pose2D]:
+        """Poses of every object, observed with nothing moving."""
+        ...
+
+    def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        """Execute one push; raises ExecutionFailed."""
+        ...
+
+
+@dataclass(frozen=True)
+class TaskSettings:
+    planner: str = "tsrrt"
+    planning_budget_s: float = 2.0
+    max_pushes: int = 80
+    time_budget_s: float = 600.0
+    convergence: float = 0.002        # relative predicted improvement below which we stop
+    seed: int = 0
+    max_replans: int = 20
+
+
+@dataclass
+class TaskReport:
+    """Everything RunTask reports: the outcome and how it got there."""
+
+    converged: bool = False
+    stop_reason: str = ""
+    pushes: int = 0
+    replans: int = 0
+    planning_s: float = 0.0
+    start_cost: float = math.nan
+    final_cost: float = math.nan
+    predicted_cost: float = math.nan
+    lower_bound: float = math.nan
+    visited: list[dict[str, Pose2D]] = field(default_factory=list)
+    costs: list[float] = field(default_factory=list)
+    divergences: list[Divergence] = field(default_factory=list)
+
+
+def scenario_at(scenario: Scenario, poses: Mapping[str, Pose2D]) -> Scenario:
+    """The scenario with its objects at the observed poses (the planner's start state)."""
+    missing = [o.id for o in scenario.objects if o.id not in poses]
+    if missing:
+        raise PlannerError(f"no observation of {missing}")
+    objects = tuple(dataclasses.replace(o, pose=poses[o.id]) for o in scenario.objects)
+    return dataclasses.replace(scenario, objects=objects)
+
+
+def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore,
+              reachability: Reachability, settings: TaskSettings, lower_bound_cost: float,
+              target: np.ndarray | None, cancel: Callable[[], bool],
+              progress: Progress | None = None, max_nodes: int | None = None
+              ) -> tuple[PlanningProblem, PlanResult]:
+    """TASK_SPACE_RRT from the observed state with the current models."""
+    problem = PlanningProblem(scenario_at(scenario, poses), store, reachability)
+    result = TASK_SPACE_RRT(problem, settings.planner, settings.seed,
+                            time_budget_s=settings.planning_budget_s, max_nodes=max_nodes,
+                            progress=progress, cancel=cancel,
+                            lower_bound_cost=lower_bound_cost, target=target)
+    return problem, result
+
+
+def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment,
+             reachability: Reachability, settings: TaskSettings, lower_bound_cost: float,
+             target: np.ndarray | None = None,
+             on_event: Callable[[str, TaskReport], None] = lambda phase, report: None,
+             cancelled: Callable[[], bool] = lambda: False,
+             on_model_update: Callable[[], None] = lambda: None) -> TaskReport:
+    """Plan, execute push by push, replan on divergence, until the objective converges.
+
+    The forward models in `store` must already cover every object (learning comes first);
+    every executed push is folded into its model.
+    """
+    report = TaskReport(lower_bound=lower_bound_cost)
+    began = time.monotonic()
+    observed = environment.observe()
+    report.visited.append(observed)
+    while True:
+        if cancelled():
+            report.stop_reason = "cancelled"
+            return report
+        on_event("planning", report)
+        problem, result = plan_from(scenario, observed, store, reachability, settings,
+                                    lower_bound_cost, target, cancelled)
+        report.planning_s += result.elapsed_s
+        current = float(result.costs[0])
+        if math.isnan(report.start_cost):
+            report.start_cost = current
+        report.final_cost = current
+        report.predicted_cost = result.best_cost
+        if not report.costs:
+            report.costs.append(current)
+        improvement = current - result.best_cost
+        if not result.steps or improvement <= settings.convergence * max(abs(current), 1e-9):
+            report.converged = True
+            report.stop_reason = "converged"
+            return report
+        tracker = PredictionTracker(scenario.objects)
+        for k, step in enumerate(result.steps):
+            if cancelled():
+                report.stop_reason = "cancelled"
+                return report
+            if report.pushes >= settings.max_pushes:
+                report.stop_reason = "push budget"
+                return report
+            if time.monotonic() - began > settings.time_budget_s:
+                report.stop_reason = "time budget"
+                return report
+            on_event("executing", report)
+            outcome = environment.execute(step.object_id, step.primitive, step.push_length)
+            report.pushes += 1
+            spec = scenario.object(step.object_id)
+            update_model_with_push(store, spec.object_class, step.object_id, step.primitive,
+                                   step.push_length, outcome)
+            on_model_update()
+            tracker.pushed(step.object_id, store.get(step.object_id, step.primitive),
+                           step.push_length)
+            observed = environment.observe()
+            report.visited.append(observed)
+            report.final_cost = float(problem.objective.cost(_state_of(problem, observed)))
+            report.costs.append(report.final_cost)
+            predicted = {o.id: Pose2D(*result.states[k + 1][i])
+                         for i, o in enumerate(scenario.objects)}
+            divergences = tracker.diverged(predicted, observed)
+            if divergences:
+                report.divergences.extend(divergences)
+                report.replans += 1
+                if report.replans > settings.max_replans:
+                    report.stop_reason = "replan budget"
+                    return report
+                on_event("replanning", report)
+                break
+
+
+def _state_of(problem: PlanningProblem, poses: Mapping[str, Pose2D]) -> np.ndarray:
+    return np.array([poses[object_id].as_array() for object_id in problem.objects.ids])

@@ -1,0 +1,97 @@
+"""The objective minimised over continuous poses, ignoring how objects get there.
+
+`lower_bound` runs a local constrained optimiser (SLSQP: analytic objective gradient, sparse
+finite-difference constraint Jacobian from collision.py) from several starts - the start state,
+then uniformly random poses on the table - under the planner's own constraints: footprints on the
+table and apart by the same margin. Pushing, reachability and the ball path are ignored, so no
+plan can end in a state it does not allow.
+
+It is a *bound* only as good as the multi-start search: the objective is non-convex, so the
+value is the best local minimum found. Gap = (C - C_lb) / |C_lb|; a negative gap would mean the
+planner found a better minimum than the multi-start did (reported as is, never hidden).
+
+`local_minimum` is also the planners' DIRECTGD: gradient-based descent from a tree node to the
+nearest constrained local minimum.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from tsrrt_planner.problem import PlanningProblem
+
+FEASIBILITY_TOLERANCE = 1e-5  # metres; SLSQP stops a hair outside active constraints
+
+
+def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: int = 60
+                  ) -> tuple[np.ndarray, float, bool]:
+    """Constrained local minimum near `state` (n, 3).
+
+    Returns:
+        (state (n, 3), cost, feasible): feasible is False when SLSQP ended outside the
+        constraints (the caller should not use such a state as a target).
+    """
+    shape = state.shape
+    objective, checker = problem.objective, problem.checker
+
+    def cost(x: np.ndarray) -> float:
+        return objective.cost(x.reshape(shape))
+
+    def gradient(x: np.ndarray) -> np.ndarray:
+        return objective.gradient(x.reshape(shape)).ravel()
+
+    constraints = {"type": "ineq", "fun": lambda x: checker.constraint_values(x.reshape(shape)),
+                   "jac": lambda x: checker.constraint_jacobian(x.reshape(shape))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = minimize(cost, state.ravel(), jac=gradient, constraints=[constraints],
+                          method="SLSQP", options={"maxiter": max_iterations, "ftol": 1e-10})
+    found = result.x.reshape(shape)
+    feasible = bool(checker.constraint_values(found).min() >= -FEASIBILITY_TOLERANCE)
+    return found, float(objective.cost(found)), feasible
+
+
+def random_state(problem: PlanningProblem, rng: np.random.Generator) -> np.ndarray:
+    """Uniform poses (n, 3) with every centre on the table (overlaps allowed)."""
+    x_min, y_min, x_max, y_max = problem.scenario.table.bounds
+    n = problem.n
+    return np.column_stack([rng.uniform(x_min, x_max, n), rng.uniform(y_min, y_max, n),
+                            rng.uniform(-np.pi, np.pi, n)])
+
+
+@dataclass(frozen=True)
+class LowerBound:
+    """Best continuous minimum found and how it was found."""
+
+    cost: float
+    state: np.ndarray  # (n, 3)
+    starts: int
+    feasible_starts: int
+    seconds: float
+
+
+def lower_bound(problem: PlanningProblem, starts: int = 16, seed: int = 0,
+                time_limit_s: float = 30.0) -> LowerBound:
+    """Multi-start constrained minimisation of the objective (see the module docstring)."""
+    rng = np.random.default_rng(seed)
+    began = time.perf_counter()
+    best_state, best_cost, feasible_count, tried = None, np.inf, 0, 0
+    for k in range(starts):
+        if k and time.perf_counter() - began > time_limit_s:
+            break
+        start = problem.start if k == 0 else random_state(problem, rng)
+        found, cost, feasible = local_minimum(problem, start, max_iterations=150)
+        tried += 1
+        if feasible:
+            feasible_count += 1
+            if cost < best_cost:
+                best_state, best_cost = found, cost
+    if best_state is None:
+        best_state, best_cost = problem.start, float(problem.objective.cost(problem.start))
+    return LowerBound(best_cost, best_state, tried, feasible_count,
+                      time.perf_counter() - began)

@@ -1,0 +1,609 @@
+"""TASK_SPACE_RRT (Sec. III-C, Fig. 4, Eq. 11): planning pushes through the objective's landscape.
+
+Four planners share the tree, the forward model, the constraints and the anytime bookkeeping:
+
+``paper``  Fig. 4 as printed. Actions are (object, primitive) pushes of the nominal 5 cm.
+    Every `gd_period` iterations DIRECTGD(T) descends from the newest leaf to a constrained local
+    minimum s_GD (lower_bound.local_minimum); if s_GD is better than the best tree node,
+    RRT_CONNECT extends the tree towards it until an extension fails. Each iteration samples
+    s_GD with probability 1 - epsilon (epsilon = 0.8) and RANDOM_CONFIG() otherwise, picks
+    NEAREST_NEIGHBOR under rho (Eq. 11, orientation weighted by the scenario's
+    orientation_weight, 40 as printed, in metres and radians), sorts all state-action pairs by
+    rho to the sample and adds the first collision-free one closer than its parent.
+``paper-nogd``  the same without DIRECTGD and RRT_CONNECT: the Fig. 10 "without GD" variant.
+``greedy``  hill climbing: repeatedly take the valid nominal push that lowers the cost most.
+``tsrrt``  the improved default (see `_TsrrtSearch`): variable push lengths steered in closed form
+    (the model is affine in push length), targets from the continuous optimum matched to each node
+    by permuting interchangeable objects and from DIRECTGD restarted at varied nodes, objective
+    line-search polishing, escaping random pushes when stuck, and merging of consecutive pushes
+    in the returned plan. Its metric weighs each box's heading by its half-length (the arc its
+    end sweeps), so one radian is not worth 40 metres.
+
+All planners are deterministic for a seed (given the same node budget), stop at a time or node
+budget or when cancelled, report progress, and return the best state found with its plan.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.lower_bound import local_minimum, random_state
+from tsrrt_planner.problem import PlanningProblem
+
+MODES = ("paper", "paper-nogd", "tsrrt", "greedy")
+Push = tuple[int, int, float]  # (object index, primitive, push length)
+MIN_STEER_GAIN = 0.2  # share of an object's squared error a steering push must remove
+SHORTCUT_TOLERANCE = 1e-4  # relative cost a shortcut may give up for fewer pushes
+Progress = Callable[["ProgressInfo"], None]
+Cancel = Callable[[], bool] | threading.Event
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Tunables; defaults are the paper's where it gives one."""
+
+    epsilon: float = 0.8          # Fig. 4: probability of RANDOM_CONFIG
+    gd_period: int = 20           # paper: iterations between DIRECTGD calls
+    gd_iterations: int = 30       # SLSQP iterations of one DIRECTGD call
+    connect_steps: int = 60       # longest RRT_CONNECT / steering run (tsrrt: 20)
+    polish_steps: int = 60        # tsrrt: longest objective line-search run
+    length_grid: int = 10         # tsrrt: push lengths tried in a line search
+
+
+@dataclass(frozen=True)
+class ProgressInfo:
+    elapsed_s: float
+    nodes: int
+    best_cost: float
+
+
+@dataclass(frozen=True)
+class PlanStep:
+    """One push: object id, primitive 1-6, push length in metres."""
+
+    object_id: str
+    primitive: int
+    push_length: float
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Best plan found.
+
+    Attributes:
+        states: (m + 1, n, 3) predicted states along the plan, from the start.
+        costs: (m + 1,) objective along the plan.
+        trace: (elapsed_s, nodes, best_cost) each time the best cost improved.
+        stop_reason: "time", "nodes", "cancelled" or "converged".
+    """
+
+    mode: str
+    seed: int
+    steps: tuple[PlanStep, ...]
+    states: np.ndarray
+    costs: np.ndarray
+    nodes: int
+    elapsed_s: float
+    trace: tuple[tuple[float, int, float], ...]
+    stop_reason: str
+    lower_bound: float | None = None
+
+    @property
+    def best_cost(self) -> float:
+        return float(self.costs[-1])
+
+    def gap(self, cost: float | None = None) -> float | None:
+        """(C - C_lb) / |C_lb| of `cost` (default the final one); None without a bound."""
+        if self.lower_bound is None:
+            return None
+        value = self.best_cost if cost is None else cost
+        return (value - self.lower_bound) / max(abs(self.lower_bound), 1e-12)
+
+
+class Tree:
+    """Search tree over joint object states, in growable arrays."""
+
+    def __init__(self, root: np.ndarray, cost: float, capacity: int = 4096) -> None:
+        self.states = np.empty((capacity, *root.shape))
+        self.parent = np.empty(capacity, int)
+        self.action = np.empty((capacity, 3))  # object, primitive, length
+        self.cost = np.empty(capacity)
+        self.size = 0
+        self.add(-1, root, (-1, -1, 0.0), cost)
+
+    def add(self, parent: int, state: np.ndarray, action: tuple[int, int, float],
+            cost: float) -> int:
+        if self.size == len(self.cost):
+            grow = len(self.cost)
+            self.states = np.concatenate([self.states, np.empty_like(self.states[:grow])])
+            self.parent = np.concatenate([self.parent, np.empty(grow, int)])
+            self.action = np.concatenate([self.action, np.empty((grow, 3))])
+            self.cost = np.concatenate([self.cost, np.empty(grow)])
+        index = self.size
+        self.states[index], self.parent[index] = state, parent
+        self.action[index], self.cost[index] = action, cost
+        self.size += 1
+        return index
+
+    def path(self, index: int) -> list[int]:
+        """Node indices from the root to `index`."""
+        nodes = []
+        while index >= 0:
+            nodes.append(index)
+            index = int(self.parent[index])
+        return nodes[::-1]
+
+
+class _Stop(Exception):
+    """Raised inside a search when the budget is spent or the caller cancelled."""
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+
+
+class _Search:
+    """Shared machinery: the tree, the metric, extensions, budget and anytime best."""
+
+    def __init__(self, problem: PlanningProblem, mode: str, seed: int, config: PlannerConfig,
+                 time_budget_s: float | None, max_nodes: int | None, progress: Progress | None,
+                 cancel: Cancel | None, orientation_weights: np.ndarray) -> None:
+        self.problem, self.mode, self.seed, self.config = problem, mode, seed, config
+        self.rng = np.random.default_rng(seed)
+        self.time_budget_s, self.max_nodes = time_budget_s, max_nodes
+        self.progress = progress
+        self.cancelled = (cancel.is_set if isinstance(cancel, threading.Event) else cancel)
+        self.began = time.perf_counter()
+        self.weights = orientation_weights  # (n,)
+        start_cost = float(problem.objective.cost(problem.start))
+        self.tree = Tree(problem.start, start_cost)
+        self.best, self.best_cost = 0, start_cost
+        self.trace: list[tuple[float, int, float]] = [(0.0, 1, start_cost)]
+        self.checks = 0
+
+    # -------------------------------------------------------------- bookkeeping
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.began
+
+    def check_budget(self) -> None:
+        self.checks += 1
+        if self.cancelled is not None and self.cancelled():
+            raise _Stop("cancelled")
+        if self.max_nodes is not None and self.tree.size >= self.max_nodes:
+            raise _Stop("nodes")
+        if self.time_budget_s is not None and self.elapsed() >= self.time_budget_s:
+            raise _Stop("time")
+        if self.progress is not None and self.checks % 50 == 0:
+            self.progress(ProgressInfo(self.elapsed(), self.tree.size, self.best_cost))
+
+    def add_node(self, parent: int, state: np.ndarray, action: tuple[int, int, float]) -> int:
+        self.check_budget()
+        cost = float(self.problem.objective.cost(state))
+        index = self.tree.add(parent, state, action, cost)
+        if cost < self.best_cost:
+            self.best, self.best_cost = index, cost
+            self.trace.append((self.elapsed(), self.tree.size, cost))
+            if self.progress is not None:
+                self.progress(ProgressInfo(self.elapsed(), self.tree.size, cost))
+        return index
+
+    # -------------------------------------------------------------- Eq. 11 and sampling
+    def rho(self, states: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Eq. 11: weighted distance (...,) of states (..., n, 3) to target (n, 3)."""
+        delta = states - target
+        angle = self.problem.angle_error(delta[..., 2]) * self.weights
+        return np.sqrt((delta[..., :2] ** 2).sum(axis=(-1, -2)) + (angle**2).sum(axis=-1))
+
+    def nearest_neighbor(self, sample: np.ndarray) -> int:
+        return int(np.argmin(self.rho(self.tree.states[: self.tree.size], sample)))
+
+    def random_config(self) -> np.ndarray:
+        return random_state(self.problem, self.rng)
+
+    def directgd(self, node: int) -> tuple[np.ndarray, float] | None:
+        """DIRECTGD: constrained gradient descent from a node; None if it ends infeasible."""
+        self.check_budget()
+        state, cost, feasible = local_minimum(self.problem, self.tree.states[node],
+                                              self.config.gd_iterations)
+        return (state, cost) if feasible else None
+
+    def extend(self, near: int, sample: np.ndarray, lengths: np.ndarray) -> int | None:
+        """Add the first valid state-action pair (sorted by rho to the sample) that is closer
+        than its parent; `lengths` (k,) per action in problem.action_* order."""
+        problem, state = self.problem, self.tree.states[near]
+        objects, primitives = problem.action_objects, problem.action_primitives
+        poses = problem.predict(state, objects, primitives, lengths)
+        candidates = np.repeat(state[None], len(objects), axis=0)
+        candidates[np.arange(len(objects)), objects] = poses
+        distance = self.rho(candidates, sample)
+        order = np.argsort(distance, kind="stable")
+        order = order[distance[order] < self.rho(state, sample) - 1e-12]
+        for chunk in np.array_split(order, max(1, math.ceil(len(order) / 8))):
+            if len(chunk) == 0:
+                continue
+            valid = problem.pushes_valid(state, objects[chunk], primitives[chunk],
+                                         lengths[chunk])
+            if valid.any():
+                k = chunk[int(np.argmax(valid))]
+                return self.add_node(near, candidates[k],
+                                     (int(objects[k]), int(primitives[k]), float(lengths[k])))
+        return None
+
+    # -------------------------------------------------------------- result
+    def result(self, stop_reason: str, lower_bound: float | None) -> PlanResult:
+        path = self.tree.path(self.best)
+        actions = self.tree.action[path[1:]]
+        steps = [(int(a[0]), int(a[1]), float(a[2])) for a in actions]
+        steps = self.shortcut(steps) if self.mode == "tsrrt" else steps
+        states = simulate(self.problem, steps)
+        return PlanResult(
+            mode=self.mode, seed=self.seed,
+            steps=tuple(PlanStep(self.problem.objects.ids[o], p, length)
+                        for o, p, length in steps),
+            states=states, costs=np.asarray(self.problem.objective.cost(states)),
+            nodes=self.tree.size, elapsed_s=self.elapsed(), trace=tuple(self.trace),
+            stop_reason=stop_reason, lower_bound=lower_bound)
+
+    def shortcut(self, steps: list[Push]) -> list[Push]:
+        """Shorten the plan: re-steer from an early state of the plan straight to its final
+        state (then polish), keeping the result when it has fewer pushes and ends within
+        SHORTCUT_TOLERANCE of the original cost; then merge runs of the same push."""
+        problem = self.problem
+        states = simulate(problem, steps)
+        final_cost = float(problem.objective.cost(states[-1]))
+        allowed = final_cost + SHORTCUT_TOLERANCE * max(abs(final_cost), 1e-12)
+        grid = np.geomspace(problem.min_length, problem.max_length, self.config.length_grid)
+        for k in sorted({0, len(steps) // 4, len(steps) // 2}):
+            state, replacement = states[k], []
+            while len(replacement) < len(steps) - k:
+                push = steer_push(problem, state, states[-1], self.weights)
+                if push is None:
+                    push = polish_push(problem, state, grid)
+                    if push is None:
+                        break
+                replacement.append(push)
+                state = problem.apply(state, *push)
+            if (len(replacement) < len(steps) - k
+                    and float(problem.objective.cost(state)) <= allowed):
+                steps = steps[:k] + replacement
+                break
+        return merge_runs(problem, steps)
+
+
+def merge_runs(problem: PlanningProblem, steps: list[Push]) -> list[Push]:
+    """Merge consecutive pushes of the same primitive on the same object when the merged plan
+    is valid and ends no worse."""
+    reference = simulate_cost(problem, steps)
+    k = 0
+    while k < len(steps) - 1:
+        (o1, p1, l1), (o2, p2, l2) = steps[k], steps[k + 1]
+        if (o1, p1) == (o2, p2) and l1 + l2 <= problem.max_length:
+            trial = steps[:k] + [(o1, p1, l1 + l2)] + steps[k + 2:]
+            cost = simulate_cost(problem, trial)
+            if cost is not None and reference is not None and cost <= reference + 1e-12:
+                steps, reference = trial, cost
+                continue
+        k += 1
+    return steps
+
+
+def simulate(problem: PlanningProblem, steps: list[tuple[int, int, float]]) -> np.ndarray:
+    """Predicted states (m + 1, n, 3) of a plan of (object index, primitive, length) steps."""
+    states = [problem.start]
+    for o, p, length in steps:
+        states.append(problem.apply(states[-1], o, p, length))
+    return np.array(states)
+
+
+def simulate_cost(problem: PlanningProblem, steps: list[tuple[int, int, float]]) -> float | None:
+    """Final cost of a plan, or None if a push in it is invalid."""
+    state = problem.start
+    for o, p, length in steps:
+        if not problem.pushes_valid(state, np.array([o]), np.array([p]), np.array([length]))[0]:
+            return None
+        state = problem.apply(state, o, p, length)
+    return float(problem.objective.cost(state))
+
+
+class _PaperSearch(_Search):
+    """Fig. 4 with nominal-length pushes; `use_gd` False gives the no-GD variant."""
+
+    def run(self, use_gd: bool) -> None:
+        problem, config = self.problem, self.config
+        lengths = np.full(len(problem.action_objects), problem.nominal_length)
+        s_gd = None
+        iteration = 0
+        while True:
+            if use_gd and iteration % config.gd_period == 0:
+                found = self.directgd(self.tree.size - 1)  # from the newest leaf
+                if found is not None:
+                    s_gd = found[0]
+                    if found[1] < self.best_cost:
+                        self.rrt_connect(s_gd, lengths)
+            iteration += 1
+            if s_gd is not None and self.rng.random() > config.epsilon:
+                sample = s_gd
+            else:
+                sample = self.random_config()
+            self.check_budget()
+            self.extend(self.nearest_neighbor(sample), sample, lengths)
+
+    def rrt_connect(self, target: np.ndarray, lengths: np.ndarray) -> None:
+        node = self.nearest_neighbor(target)
+        for _ in range(self.config.connect_steps):
+            added = self.extend(node, target, lengths)
+            if added is None:
+                return
+            node = added
+
+
+class _GreedySearch(_Search):
+    """Hill climbing over nominal pushes: the cheapest valid improving push, until none."""
+
+    def run(self) -> None:
+        problem = self.problem
+        lengths = np.full(len(problem.action_objects), problem.nominal_length)
+        node = 0
+        while True:
+            improved = self.best_push(node, lengths)
+            if improved is None:
+                raise _Stop("converged")
+            node = improved
+
+    def best_push(self, node: int, lengths: np.ndarray) -> int | None:
+        problem, state = self.problem, self.tree.states[node]
+        objects, primitives = problem.action_objects, problem.action_primitives
+        candidates = np.repeat(state[None], len(objects), axis=0)
+        candidates[np.arange(len(objects)), objects] = problem.predict(state, objects,
+                                                                       primitives, lengths)
+        costs = problem.objective.cost(candidates)
+        order = np.argsort(costs, kind="stable")
+        order = order[costs[order] < self.tree.cost[node] - 1e-12]
+        self.check_budget()
+        if len(order) == 0:
+            return None
+        valid = problem.pushes_valid(state, objects[order], primitives[order], lengths[order])
+        if not valid.any():
+            return None
+        k = order[int(np.argmax(valid))]
+        return self.add_node(node, candidates[k],
+                             (int(objects[k]), int(primitives[k]), float(lengths[k])))
+
+
+class _TsrrtSearch(_Search):
+    """The improved planner: an RRT whose samples are targets, with a steering function.
+
+    Targets are local minima of the objective: the continuous optimum (when given) with
+    interchangeable objects permuted to the best node's nearest assignment, and DIRECTGD
+    restarted from varied nodes. Each round samples either a target (probability 1 - epsilon)
+    or a target with one or two objects moved to random poses - the escaping move that pushes a
+    blocking object aside at a temporary cost - extends the nearest node towards it with STEER
+    (objects one at a time in random order, variable-length pushes whose lengths minimise rho in
+    closed form), and POLISHes the best node with line searches on the objective.
+    """
+
+    def __init__(self, *args, target: np.ndarray | None, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.groups = interchangeable_groups(self.problem)
+        self.length_grid = np.geomspace(self.problem.min_length, self.problem.max_length,
+                                        self.config.length_grid)
+        self.targets: list[tuple[float, np.ndarray]] = []
+        self.polished: set[int] = set()  # nodes where polishing found nothing more
+        if target is not None:
+            self.targets.append((float(self.problem.objective.cost(target)), target))
+
+    def run(self) -> None:
+        found = self.directgd(0)
+        if found is not None:
+            self.targets.append((found[1], found[0]))
+        rounds = 0
+        while True:
+            rounds += 1
+            if not self.targets or rounds % self.config.gd_period == 0:
+                found = self.directgd(int(self.rng.integers(self.tree.size)))  # varied nodes
+                if found is not None:
+                    self.targets.append((found[1], found[0]))
+            if not self.targets:
+                continue
+            best_target = min(self.targets, key=lambda item: item[0])[1]
+            if self.rng.random() < 0.5:
+                target = best_target
+            else:
+                target = self.targets[int(self.rng.integers(len(self.targets)))][1]
+            target = match_to(self.groups, target, self.tree.states[self.best])
+            sample = target
+            if self.rng.random() < self.config.epsilon / 2:
+                sample = target.copy()
+                moved = self.rng.choice(self.problem.n, size=min(2, self.problem.n),
+                                        replace=False)[: int(self.rng.integers(1, 3))]
+                sample[moved] = self.random_config()[moved]
+            node = self.nearest_neighbor(sample)
+            end = self.steer(node, sample)
+            if sample is target:
+                self.polish(end)
+            if self.best not in self.polished:
+                self.polished.add(self.polish(self.best))
+
+    def steer(self, node: int, target: np.ndarray) -> int:
+        """Steer the objects one at a time, in a random order, towards their poses in `target`
+        (closed-form push lengths); repeat passes while any object still moves, so an object
+        blocked in one pass can go once its neighbours have moved. Returns the last node."""
+        pushes = 0
+        moved = True
+        while moved and pushes < self.config.connect_steps:
+            moved = False
+            for i in self.rng.permutation(self.problem.n):
+                while pushes < self.config.connect_steps:
+                    self.check_budget()
+                    state = self.tree.states[node]
+                    push = steer_push(self.problem, state, target, self.weights, int(i))
+                    if push is None:
+                        break
+                    node = self.add_node(node, self.problem.apply(state, *push), push)
+                    pushes += 1
+                    moved = True
+        return node
+
+    def polish(self, node: int) -> int:
+        """Line searches on the objective along every push (lengths on a geometric grid)."""
+        for _ in range(self.config.polish_steps):
+            self.check_budget()
+            push = polish_push(self.problem, self.tree.states[node], self.length_grid)
+            if push is None:
+                return node
+            node = self.add_node(node, self.problem.apply(self.tree.states[node], *push), push)
+        return node
+
+
+def _first_valid(problem: PlanningProblem, state: np.ndarray, objects: np.ndarray,
+                 primitives: np.ndarray, lengths: np.ndarray, order: np.ndarray,
+                 chunk: int = 16, limit: int = 64) -> int | None:
+    """Index into the arrays of the first valid push among the first `limit` of `order`,
+    checking in small batches (a crowded state should not cost a check of every push)."""
+    order = order[:limit]
+    for part in np.array_split(order, max(1, math.ceil(len(order) / chunk))):
+        if len(part):
+            valid = problem.pushes_valid(state, objects[part], primitives[part], lengths[part])
+            if valid.any():
+                return int(part[int(np.argmax(valid))])
+    return None
+
+
+def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+               weights: np.ndarray, only_object: int | None = None) -> Push | None:
+    """The valid push that brings `state` closest to `target` under rho, or None if none
+    removes at least MIN_STEER_GAIN of the pushed object's squared error (which stops
+    back-and-forth pushes that only gain by side drift). The length of each (object, primitive)
+    minimises rho in closed form (the pose is affine in the length); blocked pushes are retried
+    shorter. `only_object` restricts the pushes to one object."""
+    objects, primitives = problem.action_objects, problem.action_primitives
+    if only_object is not None:
+        mine = objects == only_object
+        objects, primitives = objects[mine], primitives[mine]
+    u = problem.push_directions(state, objects, primitives)                # (k, 3)
+    error = target[objects] - state[objects]
+    error[:, 2] = problem.angle_error(target[:, 2] - state[:, 2])[objects]
+    w2 = np.column_stack([np.ones((len(objects), 2)), weights[objects] ** 2])
+    ideal = (w2 * error * u).sum(1) / np.maximum((w2 * u * u).sum(1), 1e-12)
+    usable = ideal >= problem.min_length
+    if not usable.any():
+        return None
+    objects, primitives = objects[usable], primitives[usable]
+    ideal = np.minimum(ideal[usable], problem.max_length)
+    lengths = np.concatenate([np.maximum(ideal * f, problem.min_length)
+                              for f in (1.0, 0.97, 0.75, 0.5, 0.25)])
+    objects, primitives = np.tile(objects, 5), np.tile(primitives, 5)
+    u = np.tile(u[usable], (5, 1))
+    error = np.tile(error[usable], (5, 1))
+    w2 = np.tile(w2[usable], (5, 1))
+    # rho^2 reduction of each candidate (only the pushed object's terms change)
+    before = (w2 * error**2).sum(1)
+    gain = before - (w2 * (error - lengths[:, None] * u) ** 2).sum(1)
+    order = np.argsort(-gain, kind="stable")
+    order = order[gain[order] > np.maximum(MIN_STEER_GAIN * before[order], 1e-10)]
+    k = _first_valid(problem, state, objects, primitives, lengths, order)
+    return None if k is None else (int(objects[k]), int(primitives[k]), float(lengths[k]))
+
+
+def polish_push(problem: PlanningProblem, state: np.ndarray, grid: np.ndarray) -> Push | None:
+    """The valid push (every object and primitive, lengths from `grid`) that lowers the cost
+    most, or None if none lowers it."""
+    k, g = len(problem.action_objects), len(grid)
+    objects = np.repeat(problem.action_objects, g)
+    primitives = np.repeat(problem.action_primitives, g)
+    lengths = np.tile(grid, k)
+    candidates = np.repeat(state[None], k * g, axis=0)
+    candidates[np.arange(k * g), objects] = problem.predict(state, objects, primitives, lengths)
+    costs = problem.objective.cost(candidates)
+    order = np.argsort(costs, kind="stable")
+    order = order[costs[order] < problem.objective.cost(state) - 1e-10]
+    chosen = _first_valid(problem, state, objects, primitives, lengths, order)
+    return None if chosen is None else (int(objects[chosen]), int(primitives[chosen]),
+                                        float(lengths[chosen]))
+
+
+def interchangeable_groups(problem: PlanningProblem) -> list[np.ndarray]:
+    """Sets of objects whose poses can be permuted without changing cost or constraints: same
+    class and footprint, in exactly the same objective terms."""
+    signature: dict[tuple, list[int]] = {}
+    specs = problem.scenario.objects
+    for i, spec in enumerate(specs):
+        terms = tuple(k for k, term in enumerate(problem.objective.terms) if i in term.indices)
+        key = (spec.object_class, spec.shape, spec.length, spec.width, terms)
+        signature.setdefault(key, []).append(i)
+    return [np.array(group) for group in signature.values() if len(group) > 1]
+
+
+def match_to(groups: list[np.ndarray], target: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """`target` with interchangeable objects reassigned to minimise their travel from `state`."""
+    matched = target.copy()
+    for group in groups:
+        distance = np.linalg.norm(state[group, None, :2] - target[None, group, :2], axis=-1)
+        rows, columns = linear_sum_assignment(distance)
+        matched[group[rows]] = target[group[columns]]
+    return matched
+
+
+def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
+                   time_budget_s: float | None = 10.0, max_nodes: int | None = None,
+                   progress: Progress | None = None, cancel: Cancel | None = None,
+                   config: PlannerConfig | None = None, lower_bound_cost: float | None = None,
+                   target: np.ndarray | None = None) -> PlanResult:
+    """Plan pushes that lower the objective; returns the best plan found (anytime).
+
+    Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
+    runs lines 3-14 on `problem`, whose forward models are already in place.
+
+    Args:
+        problem: start state, objective, models and constraints.
+        mode: one of MODES.
+        seed: the search is deterministic for a seed and a node budget.
+        time_budget_s: stop after this long (None: no time limit).
+        max_nodes: stop at this many tree nodes (None: no limit).
+        progress: called now and then, and whenever the best cost improves.
+        cancel: a threading.Event or a callable returning True to stop early.
+        config: tunables.
+        lower_bound_cost: reported in the result for the gap (lower_bound.lower_bound).
+        target: tsrrt only: the continuous optimum (n, 3), e.g. lower_bound(...).state.
+    """
+    if mode not in MODES:
+        raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
+    if time_budget_s is None and max_nodes is None and cancel is None:
+        raise PlannerError("give a time budget, a node budget or a cancel signal")
+    if time_budget_s is not None and not time_budget_s > 0:
+        raise PlannerError(f"time budget must be > 0 s, got {time_budget_s}")
+    if max_nodes is not None and max_nodes < 1:
+        raise PlannerError(f"node budget must be >= 1, got {max_nodes}")
+    config = config or PlannerConfig()
+    if not 0.0 <= config.epsilon <= 1.0:
+        raise PlannerError(f"epsilon must be within [0, 1], got {config.epsilon}")
+    if target is not None and np.shape(target) != problem.start.shape:
+        raise PlannerError(f"target must have shape {problem.start.shape}, got "
+                           f"{np.shape(target)}")
+    if mode == "tsrrt":
+        weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    else:
+        weights = np.full(problem.n, problem.scenario.orientation_weight)
+    arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
+                 weights)
+    search: _Search
+    try:
+        if mode == "greedy":
+            search = _GreedySearch(*arguments)
+            search.run()
+        elif mode == "tsrrt":
+            search = _TsrrtSearch(*arguments, target=target)
+            search.run()
+        else:
+            search = _PaperSearch(*arguments)
+            search.run(use_gd=mode == "paper")
+    except _Stop as stop:
+        return search.result(stop.reason, lower_bound_cost)
+    raise AssertionError("searches only end by _Stop")
