@@ -20,7 +20,7 @@ from tsrrt_executor.reachability import (
 
 def test_shipped_grid_matches_the_current_robot_description():
     grid = load_grid()  # raises if the URDF's kinematics changed since the grid was written
-    assert grid.reachable.any() and not grid.reachable.all()
+    assert grid.grid.any() and not grid.grid.all()
 
 
 def test_known_points():
@@ -31,7 +31,7 @@ def test_known_points():
 
 def test_reachable_grid_points_have_ik_solutions():
     grid = default_map()
-    rows, cols = np.nonzero(grid.reachable)
+    rows, cols = np.nonzero(grid.grid)
     rng = np.random.default_rng(7)
     ik = PusherIK()
     for index in rng.choice(rows.size, size=8, replace=False):
@@ -88,3 +88,10 @@ def test_malformed_grid_file_is_reported(tmp_path):
         load_grid(path)
     with pytest.raises(ReachabilityMapError, match="missing"):
         load_grid(tmp_path / "absent.yaml")
+
+
+def test_map_satisfies_the_planners_reachability_protocol():
+    """The planner calls .reachable(points); it must agree with is_reachable."""
+    grid = default_map()
+    points = np.array([[0.45, 0.0], [0.05, 0.0], [0.6, 0.2]])
+    np.testing.assert_array_equal(grid.reachable(points), grid.is_reachable(points))

@@ -60,13 +60,13 @@ class ReachabilityMapError(ExecutorError):
 
 @dataclass(frozen=True)
 class ReachabilityMap:
-    """Boolean grid over the table plane; reachable[i, j] is (x0 + j * step, y0 + i * step)."""
+    """Boolean grid over the table plane; grid[i, j] is (x0 + j * step, y0 + i * step)."""
 
     x0: float
     y0: float
     step: float
     heights: tuple[float, ...]
-    reachable: np.ndarray  # (ny, nx) bool
+    grid: np.ndarray  # (ny, nx) bool
 
     def is_reachable(self, points_xy: np.ndarray) -> np.ndarray:
         """Reachable-with-margin flags (N,) for points (N, 2); False outside the grid.
@@ -74,12 +74,12 @@ class ReachabilityMap:
         A point counts only if all four grid nodes around it are reachable.
         """
         points = np.atleast_2d(np.asarray(points_xy, dtype=float))
-        ny, nx = self.reachable.shape
+        ny, nx = self.grid.shape
         col = np.floor((points[:, 0] - self.x0) / self.step + 1e-9).astype(int)
         row = np.floor((points[:, 1] - self.y0) / self.step + 1e-9).astype(int)
         inside = (col >= 0) & (col < nx - 1) & (row >= 0) & (row < ny - 1)
         col_c, row_c = np.clip(col, 0, nx - 2), np.clip(row, 0, ny - 2)
-        grid = self.reachable
+        grid = self.grid
         corners = (grid[row_c, col_c] & grid[row_c, col_c + 1] & grid[row_c + 1, col_c]
                    & grid[row_c + 1, col_c + 1])
         return inside & corners
@@ -235,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {GRID_FILE} in {time.perf_counter() - start:.1f} s")
     else:
         grid = load_grid()
-    print(f"{int(grid.reachable.sum())} of {grid.reachable.size} grid points reachable")
+    print(f"{int(grid.grid.sum())} of {grid.grid.size} grid points reachable")
     for radius in (0.3, 0.5, 0.56, 0.6, 0.7, 0.8):
         angles = np.linspace(-math.pi / 2, math.pi / 2, 181)
         ring = radius * np.column_stack([np.cos(angles), np.sin(angles)])
