@@ -157,7 +157,8 @@ def _task(name: str, seed: int, bump_after: int | None = None):
     problem = PlanningProblem(scenario, store, AnnulusReachability())
     bound = lower_bound(problem, starts=8, seed=0)
     robot = _SimulatedRobot(scenario, seed=seed + 100, bump_after=bump_after)
-    settings = TaskSettings(planning_budget_s=1.0, max_pushes=60)
+    # A node budget (with a generous time limit) keeps the test independent of machine load.
+    settings = TaskSettings(planning_budget_s=30.0, planning_max_nodes=300, max_pushes=60)
     report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound.cost,
                       target=bound.state)
     return scenario, report

@@ -179,7 +179,9 @@ def test_tolerated_start_violations_may_shrink_but_never_deepen():
     start = np.array([[0.4, 0.5, 0.0], [0.502, 0.5, 0.0], [0.099, 0.2, 0.0]])
     checker = checker_for(specs, margin=0.005)
     assert not checker.state_valid(start)
-    assert checker.tolerate(start) == pytest.approx(0.003, abs=1e-9)
+    overlap, overhang = checker.tolerate(start)
+    assert overlap == pytest.approx(0.003, abs=1e-9)
+    assert overhang == pytest.approx(0.001, abs=1e-9)
     assert checker.state_valid(start)
     moves = np.array([[0.501, 0.5, 0.0],    # b closer to a: deeper, invalid
                       [0.503, 0.5, 0.0],    # b away from a: valid
@@ -194,4 +196,4 @@ def test_tolerated_start_violations_may_shrink_but_never_deepen():
     assert not checker.moved_objects_valid(start, np.array([2]), near_a)[0]
     # A valid state tolerates nothing.
     assert checker_for(specs, margin=0.005).tolerate(start + [[0, 0, 0], [0.1, 0, 0],
-                                                              [0.05, 0, 0]]) == 0.0
+                                                              [0.05, 0, 0]]) == (0.0, 0.0)

@@ -239,6 +239,7 @@ class TaskEnvironment(Protocol):
 class TaskSettings:
     planner: str = "tsrrt"
     planning_budget_s: float = 2.0
+    planning_max_nodes: int | None = None  # a node budget makes planning repeatable
     max_pushes: int = 80
     time_budget_s: float = 600.0
     convergence: float = 0.002        # relative predicted improvement below which we stop
@@ -281,7 +282,8 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
     """TASK_SPACE_RRT from the observed state with the current models."""
     problem = PlanningProblem(scenario_at(scenario, poses), store, reachability)
     result = TASK_SPACE_RRT(problem, settings.planner, settings.seed,
-                            time_budget_s=settings.planning_budget_s, max_nodes=max_nodes,
+                            time_budget_s=settings.planning_budget_s,
+                            max_nodes=max_nodes or settings.planning_max_nodes,
                             progress=progress, cancel=cancel,
                             lower_bound_cost=lower_bound_cost, target=target)
     return problem, result

@@ -131,6 +131,16 @@ class Shapes:
         self.is_disc = np.concatenate([objects.is_disc,
                                        np.array([o.shape != "box" for o in obstacles], bool)])
         self.obstacle_poses = np.array([o.pose.as_array() for o in obstacles]).reshape(-1, 3)
+        # radius of the smallest centred circle around each footprint, for cheap rejections
+        self.bounding_radius = np.where(self.is_disc, self.half[:, 0],
+                                        np.hypot(self.half[:, 0], self.half[:, 1]))
+
+    def pairs_apart(self, rows_a: np.ndarray, centres_a: np.ndarray, rows_b: np.ndarray,
+                    centres_b: np.ndarray, gap: float) -> np.ndarray:
+        """(P,) True where the bounding circles alone prove the footprints at least `gap`
+        apart, so the exact test can be skipped."""
+        reach = self.bounding_radius[rows_a] + self.bounding_radius[rows_b] + gap
+        return ((centres_a - centres_b) ** 2).sum(-1) > reach**2
 
     def pair_signed_distance(self, rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
                              poses_b: np.ndarray) -> np.ndarray:
@@ -205,13 +215,17 @@ class CollisionChecker:
         self.obstacle_allowance = np.zeros((n, m))
         self.table_allowance = np.zeros((n, 4))
 
-    def tolerate(self, state: np.ndarray) -> float:
-        """Accept the violations of `state` (n, 3) but no deeper ones; returns the worst.
+    def tolerate(self, state: np.ndarray) -> tuple[float, float]:
+        """Accept the violations of `state` (n, 3) but no deeper ones.
 
         An observed start can break the margin (a push left two objects 3 mm apart, perception
         put an edge 1 mm past the table). Planning must still start from it: every constraint
         that `state` violates is relaxed to exactly its value there, so pushes may keep or
         reduce that violation but never deepen it, and every other constraint is unchanged.
+
+        Returns:
+            The deepest violation between footprints (margin included) and the largest
+            overhang past a table edge, metres.
         """
         values = self.constraint_values(np.asarray(state, dtype=float))
         deficit = np.maximum(-values, 0.0)
@@ -222,7 +236,8 @@ class CollisionChecker:
         self.obstacle_allowance[:] = deficit[n_pairs:n_pairs + n_obstacle].reshape(
             self.n, self.m)
         self.table_allowance[:] = deficit[n_pairs + n_obstacle:].reshape(self.n, 4)
-        return float(deficit.max(initial=0.0))
+        return (float(deficit[:n_pairs + n_obstacle].max(initial=0.0)),
+                float(self.table_allowance.max(initial=0.0)))
 
     # ------------------------------------------------------------------ constraint vector
     def table_clearances(self, states: np.ndarray) -> np.ndarray:
@@ -309,18 +324,29 @@ class CollisionChecker:
         rows_b = others[keep]
         ok = table.copy()
         if n > 1:
-            gap = self.shapes.pair_signed_distance(moved[cand], poses[cand], rows_b,
-                                                   parent[rows_b])
-            required = self.margin - self.pair_allowance[moved[cand], rows_b]
-            ok &= np.bincount(cand, weights=gap < required, minlength=k) == 0
+            ok &= self._moved_pairs_clear(k, cand, moved[cand], poses[cand], rows_b,
+                                          parent[rows_b], self.pair_allowance[moved[cand], rows_b])
         if self.m:
             cand_o = np.repeat(np.arange(k), self.m)
             rows_o = np.tile(np.arange(n, n + self.m), k)
-            gap = self.shapes.pair_signed_distance(moved[cand_o], poses[cand_o], rows_o,
-                                                   self.shapes.obstacle_poses[rows_o - n])
-            required = self.margin - self.obstacle_allowance[moved[cand_o], rows_o - n]
-            ok &= np.bincount(cand_o, weights=gap < required, minlength=k) == 0
+            ok &= self._moved_pairs_clear(k, cand_o, moved[cand_o], poses[cand_o], rows_o,
+                                          self.shapes.obstacle_poses[rows_o - n],
+                                          self.obstacle_allowance[moved[cand_o], rows_o - n])
         return ok
+
+    def _moved_pairs_clear(self, k: int, cand: np.ndarray, rows_a: np.ndarray,
+                           poses_a: np.ndarray, rows_b: np.ndarray, poses_b: np.ndarray,
+                           allowance: np.ndarray) -> np.ndarray:
+        """(k,) True for candidates whose pairs (cand (P,) -> candidate) all keep the margin
+        less `allowance` (P,); exact tests only for pairs the bounding circles cannot clear."""
+        near = np.nonzero(~self.shapes.pairs_apart(rows_a, poses_a[:, :2], rows_b,
+                                                   poses_b[:, :2], self.margin))[0]
+        if len(near) == 0:
+            return np.ones(k, bool)
+        gap = self.shapes.pair_signed_distance(rows_a[near], poses_a[near], rows_b[near],
+                                               poses_b[near])
+        blocked = gap < self.margin - allowance[near]
+        return np.bincount(cand[near], weights=blocked, minlength=k) == 0
 
     def table_clearances_rows(self, rows: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """Table clearances (k, 4) of objects `rows` (k,) at poses (k, 3)."""
@@ -343,6 +369,12 @@ class CollisionChecker:
         rows = np.broadcast_to(rows_all, keep.shape)[keep]
         if len(rows) == 0:
             return np.ones(k, bool)
+        clearance = radius + self.ball_margin
+        # a segment farther from a centre than the bounding circle plus clearance is clear
+        centre_gap = segment_point_distance(start[cand], end[cand], poses_all[rows, :2])
+        near = np.nonzero(centre_gap <= self.shapes.bounding_radius[rows] + clearance)[0]
+        if len(near) == 0:
+            return np.ones(k, bool)
+        cand, rows = cand[near], rows[near]
         gap = self.shapes.segment_distance(start[cand], end[cand], rows, poses_all[rows])
-        blocked = gap < radius + self.ball_margin
-        return np.bincount(cand, weights=blocked, minlength=k) == 0
+        return np.bincount(cand, weights=gap < clearance, minlength=k) == 0

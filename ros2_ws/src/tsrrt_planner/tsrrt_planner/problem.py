@@ -12,7 +12,9 @@ A push is valid when (all checked in `pushes_valid`, vectorised over candidates)
   neighbour during a long push);
 * the ball's path from the approach point to the end of the push keeps clear of every other
   object (the pusher must be able to reach the contact point);
-* the arm reaches the approach point and the end point (reachability.py).
+* the arm reaches every ball position from the approach point to the end point (by default
+  the executor's Pinocchio-IK grid, tsrrt_executor.reachability.default_map(), so plans only
+  use pushes the robot can do).
 Push geometry (contact point, direction, approach clearance) comes from the executor's
 tsrrt_executor.push_primitives so that planner and executor agree on it.
 """
@@ -31,13 +33,15 @@ from tsrrt_executor.push_primitives import (
     primitive_vector_in_object_frame,
     primitives_for,
 )
+from tsrrt_executor.reachability import default_map
 from tsrrt_planner.collision import CollisionChecker
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import MIN_PUSH_LENGTH, ModelStore
 from tsrrt_planner.objectives import Objective, ObjectSet, build_objective
-from tsrrt_planner.reachability import AnnulusReachability, Reachability
+from tsrrt_planner.reachability import Reachability
 
 MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fitted at 0.05
+REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_reachable samples
 
 
 class PlanningProblem:
@@ -46,22 +50,24 @@ class PlanningProblem:
     Args:
         scenario: table, objects, obstacles and objective.
         models: forward models covering every object and its primitives.
-        reachability: arm reach model (default AnnulusReachability()).
+        reachability: arm reach model (default: the executor's IK grid, default_map()).
         margin: clearance kept between footprints, metres.
         max_substep: longest object travel between two collision-checked poses of a push.
-        max_start_violation: overlap or overhang (beyond the margin) tolerated in the start.
+        max_start_overlap: overlap of footprints (beyond the margin) tolerated in the start.
+        max_start_overhang: overhang past a table edge tolerated in the start.
     """
 
     def __init__(self, scenario: Scenario, models: ModelStore,
                  reachability: Reachability | None = None, margin: float = 0.005,
-                 max_substep: float = 0.03, max_start_violation: float = 0.003) -> None:
+                 max_substep: float = 0.03, max_start_overlap: float = 0.003,
+                 max_start_overhang: float = 0.03) -> None:
         self.scenario = scenario
         self.objects = ObjectSet.from_specs(scenario.objects)
         self.n = len(self.objects)
         self.objective: Objective = build_objective(scenario)
         self.checker = CollisionChecker(self.objects, scenario.obstacles, scenario.table.bounds,
                                         margin=margin)
-        self.reachability = reachability or AnnulusReachability()
+        self.reachability = reachability if reachability is not None else default_map()
         self.max_substep = max_substep
         models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects])
         shapes = [o.shape for o in scenario.objects]
@@ -74,14 +80,16 @@ class PlanningProblem:
                     spec.shape, spec.length, spec.width, p)
                 self.contact[i, p - 1], self.direction[i, p - 1] = contact, direction
         self.start = np.array([o.pose.as_array() for o in scenario.objects])
-        # An observed start may break the margin by a little; plan from it without deepening
-        # that (CollisionChecker.tolerate). A real overlap or an object far off the table is an
-        # error in the observation or the scenario.
-        self.start_violation = self.checker.tolerate(self.start)
-        if self.start_violation > margin + max_start_violation:
+        # An observed start may break the margin by a little, and an object may overhang an
+        # edge (it still rests on the table); plan from it without making either worse
+        # (CollisionChecker.tolerate). A real overlap or a large overhang is an error in the
+        # observation or the scenario.
+        overlap, overhang = self.checker.tolerate(self.start)
+        if overlap > margin + max_start_overlap or overhang > max_start_overhang:
             raise PlannerError(
-                f"{scenario.name}: the start state violates the constraints by "
-                f"{1000 * self.start_violation:.1f} mm (objects overlap or leave the table)")
+                f"{scenario.name}: the start state violates the constraints (footprints "
+                f"{1000 * max(overlap - margin, 0.0):.1f} mm into each other, "
+                f"{1000 * overhang:.1f} mm past a table edge)")
         self.action_objects, self.action_primitives = np.nonzero(self.available)
         self.action_primitives = self.action_primitives + 1
         self.nominal_length = DEFAULT_PUSH_LENGTH
@@ -92,19 +100,24 @@ class PlanningProblem:
 
     # ------------------------------------------------------------------ forward model
     def push_directions(self, state: np.ndarray, objects: np.ndarray,
-                        primitives: np.ndarray) -> np.ndarray:
-        """World pose change per metre of push, u (k, 3), for pushes on state (n, 3)."""
+                        primitives: np.ndarray, poses: np.ndarray | None = None) -> np.ndarray:
+        """World pose change per metre of push, u (k, 3), for pushes on state (n, 3).
+
+        `poses` (k, 3), here and below, optionally replaces the pushed object's pose in
+        `state` per push, so pushes of one object from several poses (the other objects as in
+        `state`) go in one batch."""
         rate = self.rates[objects, primitives - 1]  # (k, 3)
-        theta = state[objects, 2]
+        theta = (state[objects] if poses is None else poses)[:, 2]
         c, s = np.cos(theta), np.sin(theta)
         return np.column_stack([c * rate[:, 0] - s * rate[:, 1], s * rate[:, 0] + c * rate[:, 1],
                                 rate[:, 2]])
 
     def predict(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                lengths: np.ndarray) -> np.ndarray:
+                lengths: np.ndarray, poses: np.ndarray | None = None) -> np.ndarray:
         """MODEL(s, a): new pose (k, 3) of the pushed object for each push (k,)."""
-        return state[objects] + lengths[:, None] * self.push_directions(state, objects,
-                                                                        primitives)
+        before = state[objects] if poses is None else poses
+        return before + lengths[:, None] * self.push_directions(state, objects, primitives,
+                                                                poses)
 
     def apply(self, state: np.ndarray, object_index: int, primitive: int,
               length: float) -> np.ndarray:
@@ -116,13 +129,14 @@ class PlanningProblem:
 
     # ------------------------------------------------------------------ constraints
     def pushes_valid(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                     lengths: np.ndarray) -> np.ndarray:
+                     lengths: np.ndarray, poses: np.ndarray | None = None) -> np.ndarray:
         """(k,) validity of pushes on state (n, 3); see the module docstring for the rules."""
         k = len(objects)
         if k == 0:
             return np.zeros(0, bool)
-        u = self.push_directions(state, objects, primitives)
-        final = state[objects] + lengths[:, None] * u
+        before = state[objects] if poses is None else poses
+        u = self.push_directions(state, objects, primitives, before)
+        final = before + lengths[:, None] * u
         ok = self.checker.moved_objects_valid(state, objects, final)
         # intermediate poses, every max_substep of travel
         travel = lengths * np.maximum(np.linalg.norm(u[:, :2], axis=1),
@@ -132,27 +146,41 @@ class PlanningProblem:
         if len(needs):
             rows = np.repeat(needs, steps[needs] - 1)
             fractions = np.concatenate([np.arange(1, s) / s for s in steps[needs]])
-            poses = state[objects[rows]] + (fractions * lengths[rows])[:, None] * u[rows]
-            mid_ok = self.checker.moved_objects_valid(state, objects[rows], poses)
+            middle = before[rows] + (fractions * lengths[rows])[:, None] * u[rows]
+            mid_ok = self.checker.moved_objects_valid(state, objects[rows], middle)
             ok[needs] &= np.bincount(np.searchsorted(needs, rows), weights=~mid_ok,
                                      minlength=len(needs)) == 0
         alive = np.nonzero(ok)[0]
         if len(alive):
-            start, end = self.ball_path(state, objects[alive], primitives[alive], lengths[alive])
-            reach = self.reachability.reachable(start) & self.reachability.reachable(end)
+            start, end = self.ball_path(state, objects[alive], primitives[alive], lengths[alive],
+                                        before[alive])
+            reach = self.path_reachable(start, end)
             clear = self.checker.ball_paths_clear(state, objects[alive], start, end, BALL_RADIUS)
             ok[alive] = reach & clear
         return ok
 
+    def path_reachable(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """(k,) True when the arm reaches every point of the ball paths start-end (k, 2),
+        sampled at most REACH_SPACING apart as the executor checks them (the reachable region
+        is not convex near the base, so both ends reachable does not make the middle so)."""
+        count = max(2, math.ceil(float(np.linalg.norm(end - start, axis=1).max(initial=0.0))
+                                 / REACH_SPACING) + 1)
+        fractions = np.linspace(0.0, 1.0, count)[None, :, None]
+        points = start[:, None] + fractions * (end - start)[:, None]  # (k, count, 2)
+        return self.reachability.reachable(points.reshape(-1, 2)).reshape(len(start),
+                                                                          count).all(axis=1)
+
     def ball_path(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                  lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  lengths: np.ndarray, poses: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
         """Ball-centre approach and end points (k, 2) in the world, as the executor moves it."""
-        theta = state[objects, 2]
+        before = state[objects] if poses is None else poses
+        theta = before[:, 2]
         c, s = np.cos(theta), np.sin(theta)
         rotation = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (k, 2, 2)
         contact = np.einsum("kij,kj->ki", rotation, self.contact[objects, primitives - 1])
         direction = np.einsum("kij,kj->ki", rotation, self.direction[objects, primitives - 1])
-        touch = state[objects, :2] + contact - BALL_RADIUS * direction
+        touch = before[:, :2] + contact - BALL_RADIUS * direction
         return touch - APPROACH_CLEARANCE * direction, touch + lengths[:, None] * direction
 
     def state_valid(self, state: np.ndarray) -> bool:

@@ -1,11 +1,12 @@
 """Can the arm reach a push? A swappable model the planner uses as a constraint.
 
 The planner only needs a vectorised predicate over the ball-centre points of a push (the approach
-point and the end point, on the table plane in the robot base frame). The default is a simple
-annulus about the base, which is what a Panda with the tool pointing straight down can cover at
-table height: too close and the elbow folds into the base, too far and the arm is stretched flat.
-The radii are a documented guess, not a computed workspace; the executor's Pinocchio-based model
-can replace it by any object with the same `reachable` method.
+point and the end point, on the table plane in the robot base frame). PlanningProblem's default
+is the executor's Pinocchio-IK grid (tsrrt_executor.reachability.default_map()), the reach the
+robot really has. AnnulusReachability is a simple stand-in for tests and what-if studies: too
+close and the elbow folds into the base, too far and the arm is stretched flat; its radii are a
+guess, not a computed workspace (the real near limit is not a circle: x >= 0.33 m straight
+ahead, x >= 0.25 m at |y| = 0.2 m).
 """
 
 from __future__ import annotations

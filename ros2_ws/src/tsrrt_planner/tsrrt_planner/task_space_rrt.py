@@ -37,10 +37,21 @@ from scipy.optimize import linear_sum_assignment
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.lower_bound import local_minimum, random_state
 from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.rearrange import (
+    blockers_of,
+    object_error,
+    object_path,
+    parking_poses,
+    target_free,
+)
 
 MODES = ("paper", "paper-nogd", "tsrrt", "greedy")
 Push = tuple[int, int, float]  # (object index, primitive, push length)
 MIN_STEER_GAIN = 0.2  # share of an object's squared error a steering push must remove
+NEAR_OPTIMAL = 0.005  # targets within this share of the best target's cost count as optimal
+REARRANGE_TOLERANCE = 0.004  # metres (weighted rho) at which REARRANGE counts an object placed
+PARKING_TOLERANCE = 0.01  # metres: how close a parked object must get to its parking pose
+MIRROR_TOLERANCE = 1e-9  # relative cost change that still counts a mirror image as equal
 SHORTCUT_TOLERANCE = 1e-4  # relative cost a shortcut may give up for fewer pushes
 Progress = Callable[["ProgressInfo"], None]
 Cancel = Callable[[], bool] | threading.Event
@@ -279,19 +290,35 @@ class _Search:
 
 def merge_runs(problem: PlanningProblem, steps: list[Push]) -> list[Push]:
     """Merge consecutive pushes of the same primitive on the same object when the merged plan
-    is valid and ends no worse."""
-    reference = simulate_cost(problem, steps)
+    is valid and ends no worse (only the plan from the merge on is re-checked)."""
+    states = list(simulate(problem, steps))
+    reference = float(problem.objective.cost(states[-1]))
     k = 0
     while k < len(steps) - 1:
         (o1, p1, l1), (o2, p2, l2) = steps[k], steps[k + 1]
         if (o1, p1) == (o2, p2) and l1 + l2 <= problem.max_length:
-            trial = steps[:k] + [(o1, p1, l1 + l2)] + steps[k + 2:]
-            cost = simulate_cost(problem, trial)
-            if cost is not None and reference is not None and cost <= reference + 1e-12:
-                steps, reference = trial, cost
+            tail = [(o1, p1, l1 + l2)] + steps[k + 2:]
+            replayed = replay_from(problem, states[k], tail)
+            if replayed is not None and float(problem.objective.cost(replayed[-1])) <= (
+                    reference + 1e-12):
+                steps = steps[:k] + tail
+                states = states[:k] + replayed
+                reference = float(problem.objective.cost(states[-1]))
                 continue
         k += 1
     return steps
+
+
+def replay_from(problem: PlanningProblem, state: np.ndarray, steps: list[Push]
+                ) -> list[np.ndarray] | None:
+    """States [state, ...] (m + 1) along `steps` from `state`, or None if a push is invalid."""
+    states = [state]
+    for o, p, length in steps:
+        if not problem.pushes_valid(states[-1], np.array([o]), np.array([p]),
+                                    np.array([length]))[0]:
+            return None
+        states.append(problem.apply(states[-1], o, p, length))
+    return states
 
 
 def simulate(problem: PlanningProblem, steps: list[tuple[int, int, float]]) -> np.ndarray:
@@ -300,16 +327,6 @@ def simulate(problem: PlanningProblem, steps: list[tuple[int, int, float]]) -> n
     for o, p, length in steps:
         states.append(problem.apply(states[-1], o, p, length))
     return np.array(states)
-
-
-def simulate_cost(problem: PlanningProblem, steps: list[tuple[int, int, float]]) -> float | None:
-    """Final cost of a plan, or None if a push in it is invalid."""
-    state = problem.start
-    for o, p, length in steps:
-        if not problem.pushes_valid(state, np.array([o]), np.array([p]), np.array([length]))[0]:
-            return None
-        state = problem.apply(state, o, p, length)
-    return float(problem.objective.cost(state))
 
 
 class _PaperSearch(_Search):
@@ -397,39 +414,120 @@ class _TsrrtSearch(_Search):
         self.targets: list[tuple[float, np.ndarray]] = []
         self.polished: set[int] = set()  # nodes where polishing found nothing more
         if target is not None:
-            self.targets.append((float(self.problem.objective.cost(target)), target))
+            self.add_target(np.asarray(target, float),
+                            float(self.problem.objective.cost(target)))
 
     def run(self) -> None:
+        if self.targets:
+            self.polish(self.rearrange(0, self.choose_target(self.problem.start)))
         found = self.directgd(0)
         if found is not None:
-            self.targets.append((found[1], found[0]))
+            self.add_target(found[0], found[1])
         rounds = 0
         while True:
             rounds += 1
             if not self.targets or rounds % self.config.gd_period == 0:
                 found = self.directgd(int(self.rng.integers(self.tree.size)))  # varied nodes
                 if found is not None:
-                    self.targets.append((found[1], found[0]))
+                    self.add_target(found[0], found[1])
             if not self.targets:
                 continue
-            best_target = min(self.targets, key=lambda item: item[0])[1]
             if self.rng.random() < 0.5:
-                target = best_target
+                node = self.best
             else:
-                target = self.targets[int(self.rng.integers(len(self.targets)))][1]
-            target = match_to(self.groups, target, self.tree.states[self.best])
-            sample = target
+                node = int(self.rng.integers(self.tree.size))
+            target = self.choose_target(self.tree.states[node])
             if self.rng.random() < self.config.epsilon / 2:
                 sample = target.copy()
                 moved = self.rng.choice(self.problem.n, size=min(2, self.problem.n),
                                         replace=False)[: int(self.rng.integers(1, 3))]
                 sample[moved] = self.random_config()[moved]
-            node = self.nearest_neighbor(sample)
-            end = self.steer(node, sample)
-            if sample is target:
-                self.polish(end)
+                self.steer(self.nearest_neighbor(sample), sample)
+            else:
+                self.polish(self.rearrange(node, target))
             if self.best not in self.polished:
                 self.polished.add(self.polish(self.best))
+
+    def add_target(self, state: np.ndarray, cost: float) -> None:
+        """Keep a local minimum as a target, with its equally good mirror images and quarter
+        turns of its clusters (`equivalent_targets`)."""
+        for variant in equivalent_targets(self.problem, state):
+            self.targets.append((cost, variant))
+
+    def choose_target(self, state: np.ndarray) -> np.ndarray:
+        """A target for extending from `state` (n, 3): usually the near-optimal target (within
+        NEAR_OPTIMAL of the best) closest to `state` under rho after matching interchangeable
+        objects, sometimes any target at random (other basins)."""
+        best_cost = min(cost for cost, _ in self.targets)
+        near = [target for cost, target in self.targets
+                if cost <= best_cost + NEAR_OPTIMAL * abs(best_cost)]
+        if self.rng.random() < 0.2:
+            near = [self.targets[int(self.rng.integers(len(self.targets)))][1]]
+        matched = np.array([match_to(self.groups, target, state) for target in near])
+        return matched[int(np.argmin(self.rho(matched, state)))]
+
+    def rearrange(self, node: int, target: np.ndarray) -> int:
+        """REARRANGE (rearrange.py): move the objects to `target` one at a time along searched
+        push paths, objects with a free target first, and park an object that stands in the
+        way when none can go. Returns the last node added (or `node`)."""
+        problem = self.problem
+
+        def error(i: int, state: np.ndarray) -> float:
+            return float(object_error(problem, i, state[i][None], target[i],
+                                      self.weights[i])[0])
+
+        state = self.tree.states[node]
+        pending = [i for i in range(problem.n) if error(i, state) > REARRANGE_TOLERANCE]
+        for _ in range(3 * problem.n):
+            if not pending:
+                break
+            state = self.tree.states[node]
+            order = sorted(pending, key=lambda i: (
+                not target_free(problem, state, target, i).all(), error(i, state)))
+            placed = False
+            for i in order:
+                path, reached = object_path(problem, self.tree.states[node], i, target[i],
+                                            self.weights[i], self.check_budget,
+                                            REARRANGE_TOLERANCE)
+                node = self.follow(node, path)
+                if reached:
+                    pending.remove(i)
+                    placed = True
+                    break
+            if not placed:
+                parked = self.park(node, target, order, pending)
+                if parked is None:
+                    break
+                node = parked
+        return node
+
+    def park(self, node: int, target: np.ndarray, order: list[int], pending: list[int]
+             ) -> int | None:
+        """Move an object in the way of one of the first pending objects in `order` to a free
+        pose off every pending target (adding it to `pending`); None when none could move."""
+        problem = self.problem
+        state = self.tree.states[node]
+        tried: set[int] = set()
+        for blocked in order[:3]:
+            for j in blockers_of(problem, state, target, blocked)[:2]:
+                if j in tried:
+                    continue
+                tried.add(j)
+                for pose in parking_poses(problem, state, target, j, pending, self.rng,
+                                              blocked)[:3]:
+                    path, reached = object_path(problem, state, j, pose, self.weights[j],
+                                                self.check_budget, PARKING_TOLERANCE)
+                    if reached and path:
+                        if j not in pending:
+                            pending.append(j)
+                        return self.follow(node, path)
+        return None
+
+    def follow(self, node: int, path: list[Push]) -> int:
+        """Add the pushes of `path` to the tree from `node`; returns the last node."""
+        for push in path:
+            node = self.add_node(node, self.problem.apply(self.tree.states[node], *push), push)
+        return node
 
     def steer(self, node: int, target: np.ndarray) -> int:
         """Steer the objects one at a time, in a random order, towards their poses in `target`
@@ -539,6 +637,57 @@ def interchangeable_groups(problem: PlanningProblem) -> list[np.ndarray]:
         key = (spec.object_class, spec.shape, spec.length, spec.width, terms)
         signature.setdefault(key, []).append(i)
     return [np.array(group) for group in signature.values() if len(group) > 1]
+
+
+def equivalent_targets(problem: PlanningProblem, state: np.ndarray) -> list[np.ndarray]:
+    """`state` (n, 3) and variants that are as good and valid: its mirror images, and quarter
+    turns of the objects a distance_to_point term gathers, about that term's point (positions
+    and headings turned by +-pi/2; the term and orthogonality cannot tell them apart). A
+    cluster of boxes gathered side by side can then be reached stacked instead, which saves
+    turning every box by 90 degrees in a crowded spot."""
+    cost = float(problem.objective.cost(state))
+    variants = [state]
+    for term in problem.objective.terms:
+        if term.type_name != "distance_to_point" or len(term.indices) < 2:
+            continue
+        for turn in (np.pi / 2, -np.pi / 2):
+            c, s = math.cos(turn), math.sin(turn)
+            turned = state.copy()
+            offset = state[term.indices, :2] - term.point
+            turned[term.indices, 0] = term.point[0] + c * offset[:, 0] - s * offset[:, 1]
+            turned[term.indices, 1] = term.point[1] + s * offset[:, 0] + c * offset[:, 1]
+            turned[term.indices, 2] = state[term.indices, 2] + turn
+            if equally_good(problem, turned, cost):
+                variants.append(turned)
+    return [image for variant in variants for image in mirror_images(problem, variant)]
+
+
+def equally_good(problem: PlanningProblem, state: np.ndarray, cost: float) -> bool:
+    """True when `state` costs `cost` (within MIRROR_TOLERANCE) and meets the constraints."""
+    same = abs(float(problem.objective.cost(state)) - cost) <= MIRROR_TOLERANCE * max(
+        abs(cost), 1.0)
+    return same and bool(problem.checker.constraint_values(state).min() >= -1e-5)
+
+
+def mirror_images(problem: PlanningProblem, state: np.ndarray) -> list[np.ndarray]:
+    """`state` (n, 3) and those of its mirror images through the table's centre lines (and the
+    point reflection through its centre) that are equally good and valid: without static
+    obstacles or a named point the objective cannot tell them apart, and a target on the other
+    side of the table may be much nearer to the objects."""
+    x_min, y_min, x_max, y_max = problem.scenario.table.bounds
+    cx, cy = (x_min + x_max) / 2, (y_min + y_max) / 2
+    cost = float(problem.objective.cost(state))
+    images = [state]
+    for flip_x, flip_y in ((True, False), (False, True), (True, True)):
+        image = state.copy()
+        if flip_x:  # x -> 2 cx - x turns a heading theta into pi - theta
+            image[:, 0], image[:, 2] = 2 * cx - image[:, 0], np.pi - image[:, 2]
+        if flip_y:  # y -> 2 cy - y turns theta into -theta
+            image[:, 1], image[:, 2] = 2 * cy - image[:, 1], -image[:, 2]
+        image[:, 2] = (image[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        if equally_good(problem, image, cost):
+            images.append(image)
+    return images
 
 
 def match_to(groups: list[np.ndarray], target: np.ndarray, state: np.ndarray) -> np.ndarray:

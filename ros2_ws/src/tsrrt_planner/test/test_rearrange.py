@@ -1,0 +1,145 @@
+"""REARRANGE pieces (rearrange.py), equivalent targets and the push constraints they rely on."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tsrrt_common.scenario import load_scenario
+from tsrrt_executor.reachability import default_map
+from tsrrt_planner.lower_bound import lower_bound
+from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.push_rule import learn_all
+from tsrrt_planner.rearrange import (
+    blockers_of,
+    object_error,
+    object_path,
+    parking_poses,
+    target_free,
+)
+from tsrrt_planner.task_space_rrt import equivalent_targets
+
+
+@pytest.fixture(scope="module")
+def problem() -> PlanningProblem:
+    scenario = load_scenario("tset6")
+    return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+
+
+def weights(problem: PlanningProblem) -> np.ndarray:
+    return np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+
+
+def test_default_reachability_is_the_executors_map(problem):
+    assert problem.reachability is default_map()
+
+
+def test_push_needs_the_whole_ball_path_reachable(problem):
+    """Both ends reachable but the middle not (the base's dead zone) makes a push invalid."""
+    start, end = np.array([[0.27, 0.2]]), np.array([[0.27, -0.2]])
+    reach = problem.reachability.reachable
+    assert reach(start)[0] and reach(end)[0] and not reach(np.array([[0.27, 0.0]]))[0]
+    assert not problem.path_reachable(start, end)[0]
+    assert problem.path_reachable(np.array([[0.45, 0.1]]), np.array([[0.45, -0.1]]))[0]
+
+
+def test_pushes_from_given_poses_match_pushes_from_the_state(problem):
+    """Batched pushes of one object from several poses equal pushes from substituted states."""
+    rng = np.random.default_rng(3)
+    index, state = 0, problem.start
+    poses = state[index] + np.column_stack([rng.uniform(-0.03, 0.03, (20, 2)),
+                                            rng.uniform(-0.3, 0.3, 20)])
+    primitives = rng.integers(1, 5, 20)
+    lengths = rng.uniform(0.002, 0.1, 20)
+    objects = np.full(20, index)
+    batched = problem.pushes_valid(state, objects, primitives, lengths, poses)
+    predicted = problem.predict(state, objects, primitives, lengths, poses)
+    for k in range(20):
+        substituted = state.copy()
+        substituted[index] = poses[k]
+        one = (np.array([index]), primitives[k:k + 1], lengths[k:k + 1])
+        assert batched[k] == problem.pushes_valid(substituted, *one)[0]
+        np.testing.assert_allclose(predicted[k], problem.predict(substituted, *one)[0])
+    assert batched.any() and not batched.all()
+
+
+def test_object_path_pushes_are_valid_and_reach_a_free_goal(problem):
+    state = problem.start
+    index = 3  # plate_4, near a free corner
+    goal = state[index] + np.array([0.012, -0.01, 0.0])
+    path, reached = object_path(problem, state, index, goal, 0.0, lambda: None, 0.004)
+    assert reached and path
+    for o, p, length in path:
+        assert o == index
+        assert problem.pushes_valid(state, np.array([o]), np.array([p]), np.array([length]))[0]
+        state = problem.apply(state, o, p, length)
+    assert problem.state_valid(state)
+    assert object_error(problem, index, state[index][None], goal, 0.0)[0] <= 0.004
+
+
+def test_object_path_into_an_occupied_spot_is_not_reached(problem):
+    """A goal on top of another object can be approached but never reached."""
+    state = problem.start
+    goal = state[1].copy()  # plate_1 onto plate_2
+    path, reached = object_path(problem, state, 0, goal, 0.0, lambda: None, 0.004,
+                                max_expansions=16)
+    assert not reached
+    for o, p, length in path:
+        assert problem.pushes_valid(state, np.array([o]), np.array([p]), np.array([length]))[0]
+        state = problem.apply(state, o, p, length)
+    before = object_error(problem, 0, problem.start[0][None], goal, 0.0)[0]
+    assert object_error(problem, 0, state[0][None], goal, 0.0)[0] <= before
+
+
+def test_blockers_and_parking(problem):
+    state = problem.start
+    target = state.copy()
+    target[0] = state[1]  # plate_1's target is where plate_2 stands
+    assert not target_free(problem, state, target, 0).all()
+    assert blockers_of(problem, state, target, 0)[0] == 1
+    poses = parking_poses(problem, state, target, 1, [0, 1], np.random.default_rng(0),
+                          blocked=0)
+    assert len(poses)
+    distance = np.linalg.norm(poses[:, :2] - state[1, :2], axis=1)
+    assert np.all(np.diff(distance) >= 0)
+    for pose in poses:
+        assert problem.checker.moved_objects_valid(state, np.array([1]), pose[None])[0]
+        parked = state.copy()
+        parked[1] = pose
+        parked[0] = target[0]  # the blocked object's target is free of the parked object
+        gap = problem.checker.shapes.pair_signed_distance(
+            np.array([0]), parked[[0]], np.array([1]), parked[[1]])
+        assert gap[0] >= problem.checker.margin
+
+
+def test_equivalent_targets_are_equally_good_and_valid(problem):
+    bound = lower_bound(problem, starts=2)
+    variants = equivalent_targets(problem, bound.state)
+    assert len(variants) >= 4  # tset6: mirror images of the table's centre lines at least
+    for variant in variants:
+        assert problem.objective.cost(variant) == pytest.approx(bound.cost, rel=1e-9)
+        assert problem.checker.constraint_values(variant).min() >= -1e-5
+    assert not np.allclose(variants[0], variants[1])
+
+
+def test_rearrange_plans_replay_on_tset6(problem):
+    """The improved mode's plan on the crowded tset6 replays validly from the models."""
+    from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT
+
+    bound = lower_bound(problem, starts=2)
+    result = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=120,
+                            lower_bound_cost=bound.cost, target=bound.state)
+    index = {object_id: i for i, object_id in enumerate(problem.objects.ids)}
+    state = problem.start
+    for step in result.steps:
+        o = index[step.object_id]
+        assert problem.pushes_valid(state, np.array([o]), np.array([step.primitive]),
+                                    np.array([step.push_length]))[0]
+        state = problem.apply(state, o, step.primitive, step.push_length)
+        assert problem.state_valid(state)
+    np.testing.assert_allclose(state, result.states[-1], atol=1e-12)
+    assert result.best_cost < problem.objective.cost(problem.start)
+    # determinism under a node budget
+    again = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=120,
+                           lower_bound_cost=bound.cost, target=bound.state)
+    assert again.steps == result.steps

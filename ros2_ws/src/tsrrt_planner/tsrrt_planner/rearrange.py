@@ -1,0 +1,215 @@
+"""REARRANGE: the improved planner's steering through clutter, one object at a time.
+
+STEER (task_space_rrt.steer_push) pushes every object straight towards its target and gives up
+on an object as soon as its push is blocked. On a crowded table objects lock each other in: a
+platter needs the spot a plate sits in and the plate cannot get past the platter, so almost every
+straight push is blocked. REARRANGE plans the moves in an order instead:
+
+* objects whose target footprint is free go first, each along a path of pushes found by a small
+  best-first search over that object's pose with every other object fixed (`object_path`):
+  variable-length pushes, the closed-form steering length among them, so a path can go around a
+  neighbour, turn a box before sliding it, or leave the reach-limited strip near the robot;
+* when no pending object can get to its target, an object standing on a pending target (or in
+  the way of one) is parked: moved to a free pose on the table that overlaps no pending target
+  (`parking_poses`), after which the blocked object goes and the parked one follows later.
+
+Every push of a path was checked with the full push validity (problem.pushes_valid) in the state
+it is applied to, so a path added to the tree is consistent with the models and constraints.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable
+
+import numpy as np
+
+from tsrrt_planner.problem import PlanningProblem
+
+Push = tuple[int, int, float]  # (object index, primitive, push length)
+PATH_PUSH_COST = 0.01   # metres of remaining error one extra push is worth (weighted A*)
+KEY_RESOLUTION = 0.002  # metres (and weighted radians) of the duplicate-pose grid
+STEER_FRACTIONS = (1.0, 0.5)  # closed-form push length and half of it
+FIXED_LENGTHS = (0.01, 0.03, 0.06, 0.10)  # detour pushes of fixed length
+BALL_ROOM = 0.04  # metres around an object the pusher needs (ball, approach, margins)
+
+
+def object_error(problem: PlanningProblem, index: int, poses: np.ndarray, goal: np.ndarray,
+                 weight: float) -> np.ndarray:
+    """Weighted distance (k,) of poses (k, 3) of object `index` to its goal pose (3,): the
+    object's share of rho, heading reduced modulo its symmetry and weighted by `weight`."""
+    period = problem.angle_period[index]
+    delta = goal[None] - poses
+    if period > 0:
+        angle = (delta[:, 2] + period / 2) % period - period / 2
+    else:
+        angle = np.zeros(len(poses))
+    return np.sqrt(delta[:, 0] ** 2 + delta[:, 1] ** 2 + (weight * angle) ** 2)
+
+
+def _candidate_pushes(problem: PlanningProblem, state: np.ndarray, index: int,
+                      pose: np.ndarray, goal: np.ndarray, weight: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Primitives and lengths (k,) to try on object `index` at `pose` (3,): for every primitive,
+    the length that brings it closest to `goal` (closed form, the pose being affine in the
+    length) and half of it, plus fixed detour lengths."""
+    primitives = problem.action_primitives[problem.action_objects == index]
+    objects = np.full(len(primitives), index)
+    u = problem.push_directions(state, objects, primitives,
+                                np.repeat(pose[None], len(primitives), 0))  # (p, 3)
+    error = goal - pose
+    period = problem.angle_period[index]
+    error[2] = (error[2] + period / 2) % period - period / 2 if period > 0 else 0.0
+    w2 = np.array([1.0, 1.0, weight**2])
+    ideal = (u * error * w2).sum(1) / np.maximum((u * u * w2).sum(1), 1e-12)
+    steer = np.clip(np.outer(ideal, STEER_FRACTIONS), 0.0, problem.max_length)
+    fixed = np.broadcast_to(np.array(FIXED_LENGTHS), (len(primitives), len(FIXED_LENGTHS)))
+    lengths = np.concatenate([steer, fixed], axis=1)  # (p, m)
+    keep = lengths >= problem.min_length
+    return np.broadcast_to(primitives[:, None], lengths.shape)[keep], lengths[keep]
+
+
+def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: np.ndarray,
+                weight: float, tick: Callable[[], None], tolerance: float = 0.004,
+                max_expansions: int = 48, batch: int = 4) -> tuple[list[Push], bool]:
+    """Pushes that move object `index` from its pose in `state` (n, 3) towards `goal` (3,) with
+    every other object fixed: weighted A* over the object's pose (f = remaining error +
+    PATH_PUSH_COST per push), expanding `batch` nodes per validity check, duplicate poses
+    pruned on a KEY_RESOLUTION grid.
+
+    Returns:
+        (pushes, reached): the path to the first pose within `tolerance` of the goal (reached
+        True) or, when the search ran out of expansions, to the closest pose found if it is
+        closer than the start (reached False); an empty list when nothing helps.
+    """
+    period = problem.angle_period[index]
+    start = state[index].copy()
+    poses, parents, actions = [start], [-1], [(-1, -1, 0.0)]
+    errors = [float(object_error(problem, index, start[None], goal, weight)[0])]
+    depths = [0]
+    best = 0
+    if errors[0] <= tolerance:
+        return [], True
+    queue = [(errors[0], 0)]  # (f, node)
+    seen = {_key(start, weight, period)}
+    expansions = 0
+    while queue and expansions < max_expansions:
+        tick()
+        nodes = [heapq.heappop(queue)[1] for _ in range(min(batch, len(queue)))]
+        expansions += len(nodes)
+        parts = [_candidate_pushes(problem, state, index, poses[node], goal, weight)
+                 for node in nodes]
+        owner = np.concatenate([np.full(len(part[0]), node) for node, part in
+                                zip(nodes, parts, strict=True)])
+        primitives = np.concatenate([part[0] for part in parts])
+        lengths = np.concatenate([part[1] for part in parts])
+        before = np.array(poses)[owner]
+        objects = np.full(len(primitives), index)
+        new = problem.predict(state, objects, primitives, lengths, before)
+        error = object_error(problem, index, new, goal, weight)
+        keys = [_key(pose, weight, period) for pose in new]
+        fresh = np.array([key not in seen for key in keys], bool)
+        if not fresh.any():
+            continue
+        valid = np.zeros(len(new), bool)
+        valid[fresh] = problem.pushes_valid(state, objects[fresh], primitives[fresh],
+                                            lengths[fresh], before[fresh])
+        for k in np.nonzero(valid)[0][np.argsort(error[valid], kind="stable")]:
+            if keys[k] in seen:
+                continue
+            seen.add(keys[k])
+            poses.append(new[k])
+            parents.append(int(owner[k]))
+            actions.append((index, int(primitives[k]), float(lengths[k])))
+            errors.append(float(error[k]))
+            depths.append(depths[int(owner[k])] + 1)
+            child = len(poses) - 1
+            if errors[child] < errors[best]:
+                best = child
+            if errors[child] <= tolerance:
+                return _trace(parents, actions, child), True
+            heapq.heappush(queue, (errors[child] + PATH_PUSH_COST * depths[child], child))
+    return (_trace(parents, actions, best) if best else []), False
+
+
+def _key(pose: np.ndarray, weight: float, period: float) -> tuple[int, int, int]:
+    angle = pose[2] % period if period > 0 else 0.0
+    return (round(pose[0] / KEY_RESOLUTION), round(pose[1] / KEY_RESOLUTION),
+            round(weight * angle / KEY_RESOLUTION))
+
+
+def _trace(parents: list[int], actions: list[Push], node: int) -> list[Push]:
+    path = []
+    while node > 0:
+        path.append(actions[node])
+        node = parents[node]
+    return path[::-1]
+
+
+def footprints_clear(problem: PlanningProblem, rows_a: np.ndarray, poses_a: np.ndarray,
+                     rows_b: np.ndarray, poses_b: np.ndarray) -> np.ndarray:
+    """(P,) True where object rows_a at poses_a (P, 3) keeps the margin from rows_b/poses_b."""
+    if len(rows_a) == 0:
+        return np.ones(0, bool)
+    shapes = problem.checker.shapes
+    gap = shapes.pair_signed_distance(rows_a, poses_a, rows_b, poses_b)
+    return gap >= problem.checker.margin
+
+
+def target_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                index: int) -> np.ndarray:
+    """(n,) True for objects j whose current footprint keeps clear of `index`'s target
+    footprint (the entry for `index` itself is True)."""
+    others = np.array([j for j in range(problem.n) if j != index], int)
+    clear = np.ones(problem.n, bool)
+    clear[others] = footprints_clear(problem, np.full(len(others), index),
+                                     np.repeat(target[index][None], len(others), 0), others,
+                                     state[others])
+    return clear
+
+
+def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                index: int) -> list[int]:
+    """Objects in the way of `index` reaching its target: those standing on its target
+    footprint, else those near the straight line from it to its target, closest first ("near":
+    their bounding circles closer than BALL_ROOM, so they may block the pusher too)."""
+    on_target = np.nonzero(~target_free(problem, state, target, index))[0]
+    if len(on_target):
+        return [int(j) for j in on_target]
+    others = np.array([j for j in range(problem.n) if j != index], int)
+    a, b = state[index, :2], target[index, :2]
+    direction = b - a
+    t = np.clip(((state[others, :2] - a) @ direction) / max(direction @ direction, 1e-12), 0, 1)
+    distance = np.linalg.norm(a + t[:, None] * direction - state[others, :2], axis=1)
+    reach = (problem.checker.shapes.bounding_radius[others]
+             + problem.checker.shapes.bounding_radius[index] + BALL_ROOM)
+    near = distance < reach
+    return [int(j) for j in others[near][np.argsort(distance[near], kind="stable")]]
+
+
+def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                  index: int, pending: list[int], rng: np.random.Generator, blocked: int,
+                  samples: int = 48) -> np.ndarray:
+    """Free poses (k, 3) for object `index` at its current heading, nearest first: on the table
+    clear of every other object now, of the targets of the other pending objects and of the
+    corridor the `blocked` object sweeps going straight to its target."""
+    x_min, y_min, x_max, y_max = problem.scenario.table.bounds
+    poses = np.column_stack([rng.uniform(x_min, x_max, samples),
+                             rng.uniform(y_min, y_max, samples),
+                             np.full(samples, state[index, 2])])
+    ok = problem.checker.moved_objects_valid(state, np.full(samples, index), poses)
+    for j in pending:
+        if j != index and ok.any():
+            alive = np.nonzero(ok)[0]
+            ok[alive] = footprints_clear(problem, np.full(len(alive), index), poses[alive],
+                                         np.full(len(alive), j),
+                                         np.repeat(target[j][None], len(alive), 0))
+    a, b = state[blocked, :2], target[blocked, :2]
+    direction = b - a
+    t = np.clip(((poses[:, :2] - a) @ direction) / max(direction @ direction, 1e-12), 0, 1)
+    corridor = np.linalg.norm(a + t[:, None] * direction - poses[:, :2], axis=1)
+    radius = problem.checker.shapes.bounding_radius
+    ok &= corridor > radius[index] + radius[blocked] + problem.checker.margin
+    poses = poses[ok]
+    order = np.argsort(np.linalg.norm(poses[:, :2] - state[index, :2], axis=1), kind="stable")
+    return poses[order]
