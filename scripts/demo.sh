@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Demo: sets up the workspace, then renders a snapshot of a scenario.
-# Usage: scripts/demo.sh [--scenario NAME|PATH] [--out DIR] [extra args for tsrrt_sim.snapshot]
+# Demo: sets up the workspace, brings the node graph up, runs the task end to end, writes a report.
+# Usage: scripts/demo.sh [--scenario NAME|PATH] [--out DIR] [extra args for scripts/demo.py]
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
@@ -24,4 +24,4 @@ TSRRT_SETUP_QUIET=1 bash "$ROOT/scripts/setup.sh"
 # shellcheck source=scripts/env.sh
 source "$ROOT/scripts/env.sh"
 # Relative paths are taken from the caller's directory, as the user typed them.
-exec python -m tsrrt_sim.snapshot --scenario "$scenario" --out "$out" ${extra[@]+"${extra[@]}"}
+exec python "$ROOT/scripts/demo.py" --scenario "$scenario" --out "$out" ${extra[@]+"${extra[@]}"}

@@ -10,6 +10,7 @@ import pytest
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.closed_loop import (
+    ExecutionFailed,
     PredictionTracker,
     PushOutcome,
     TaskSettings,
@@ -61,6 +62,63 @@ def test_learning_in_place_converges_and_stays_on_the_table(object_id: str) -> N
     assert result.models[1].mean[0] > 0 > result.models[2].mean[0]
     assert result.models[3].mean[1] > 0 > result.models[4].mean[1]
     assert result.models[5].mean[2] > 0 > result.models[6].mean[2]
+
+
+def test_blocked_pushes_are_skipped_and_retried_later() -> None:
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    pusher = SimulatedPusher(scenario.objects, seed=2)
+    refusals = []
+
+    def execute(object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        if primitive == 3 and len(refusals) < 2:
+            refusals.append(primitive)
+            raise ExecutionFailed(2, "ball path blocked by 'remote'", blocked=True)
+        return _executor(pusher)(object_id, primitive, push_length)
+
+    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
+                            toward=scenario.table.center)
+    assert refusals == [3, 3] and result.converged
+
+
+def test_learning_gives_up_when_every_remaining_push_is_blocked() -> None:
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    pusher = SimulatedPusher(scenario.objects, seed=2)
+
+    def execute(object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        if primitive in (3, 4):
+            raise ExecutionFailed(2, "out of reach", blocked=True)
+        return _executor(pusher)(object_id, primitive, push_length)
+
+    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
+                            toward=scenario.table.center)
+    assert not result.converged and set(result.models) == {1, 2, 5, 6}
+
+
+def test_learning_continues_from_prior_statistics() -> None:
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    pusher = SimulatedPusher(scenario.objects, seed=4)
+    first = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule(),
+                           toward=scenario.table.center)
+    again = learn_in_place(spec, pusher.poses["eraser"], _executor(pusher),
+                           ConfidenceStoppingRule(), toward=scenario.table.center,
+                           prior=first.statistics)
+    assert again.trials == 0 and again.converged
+    assert again.models[1].count == first.models[1].count
+
+
+def test_other_execution_failures_propagate() -> None:
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+
+    def execute(object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        raise ExecutionFailed(4, "tracking failed")
+
+    with pytest.raises(ExecutionFailed, match="tracking failed"):
+        learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
+                       toward=scenario.table.center)
 
 
 def test_disc_learns_only_translation_primitives() -> None:

@@ -178,3 +178,16 @@ def test_mismatched_models_are_an_error(store):
         store.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects])
     with pytest.raises(ModelFileError, match="models are for class 'plate'"):
         store.check_covers([("plate_1", "platter", "box")])
+
+
+def test_a_primitive_without_a_model_is_unavailable_not_an_error(store):
+    partial = ModelStore([m for (o, p), m in store.models.items() if (o, p) != ("plate_1", 3)],
+                         store.classes)
+    objects = [("plate_1", "plate", "cylinder"), ("plate_2", "plate", "cylinder")]
+    with pytest.raises(ModelFileError, match=r"plate_1: no model for primitives \[3\]"):
+        partial.check_covers(objects)
+    partial.check_covers(objects, every_primitive=False)
+    rates, available = partial.rate_table(["plate_1", "plate_2"], ["cylinder", "cylinder"])
+    assert available.tolist() == [[True, True, False, True, False, False],
+                                  [True, True, True, True, False, False]]
+    assert not rates[0, 2].any()

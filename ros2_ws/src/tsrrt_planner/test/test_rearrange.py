@@ -12,12 +12,19 @@ from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.rearrange import (
     blockers_of,
+    corridor_blocks,
     object_error,
     object_path,
     parking_poses,
     target_free,
 )
-from tsrrt_planner.task_space_rrt import equivalent_targets
+from tsrrt_planner.task_space_rrt import (
+    equivalent_targets,
+    inset_from_edges,
+    replay_from,
+    shorten_runs,
+    simulate,
+)
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +98,9 @@ def test_object_path_into_an_occupied_spot_is_not_reached(problem):
     assert object_error(problem, 0, state[0][None], goal, 0.0)[0] <= before
 
 
-def test_blockers_and_parking(problem):
+def test_blockers_and_parking():
+    scenario = load_scenario("tset3")  # the tset6 start leaves almost no room to park
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
     state = problem.start
     target = state.copy()
     target[0] = state[1]  # plate_1's target is where plate_2 stands
@@ -143,3 +152,44 @@ def test_rearrange_plans_replay_on_tset6(problem):
     again = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=120,
                            lower_bound_cost=bound.cost, target=bound.state)
     assert again.steps == result.steps
+
+
+def test_corridor_blocks_orders_an_object_out_of_anothers_way():
+    """A target on another object's straight way blocks it, only while that one is pending."""
+    scenario = load_scenario("tset3")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    state, target = problem.start, problem.start.copy()
+    target[1, :2] = state[1, :2] + np.array([0.2, 0.0])
+    target[0, :2] = state[1, :2] + np.array([0.1, 0.0])  # half way along plate_2's way
+    blocks = corridor_blocks(problem, state, target, [0, 1, 2])
+    assert blocks[0, 1] and not blocks.diagonal().any()
+    assert not corridor_blocks(problem, state, target, [0, 2])[0, 1]
+
+
+def test_targets_on_an_edge_are_aimed_at_from_inside(problem):
+    bound = lower_bound(problem, starts=2)
+    inset = inset_from_edges(problem, bound.state, 0.002)
+    rows = np.arange(problem.n)
+    before = problem.checker.table_clearances_rows(rows, bound.state).min(axis=1)
+    after = problem.checker.table_clearances_rows(rows, inset).min(axis=1)
+    assert np.all(after >= 0.002 - 1e-9)
+    assert np.any(before < 0.002)  # tset6's plates sit in the corners
+    untouched = before >= 0.002
+    np.testing.assert_array_equal(inset[untouched], bound.state[untouched])
+    np.testing.assert_array_equal(inset[:, 2], bound.state[:, 2])
+
+
+def test_runs_of_short_pushes_are_shortened_validly():
+    scenario = load_scenario("tset3")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    weights_ = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    staircase = [(0, 2, 0.01), (0, 4, 0.01)] * 3
+    assert replay_from(problem, problem.start, staircase) is not None
+    shorter = shorten_runs(problem, staircase, weights_, np.inf)
+    assert len(shorter) < len(staircase)
+    replayed = replay_from(problem, problem.start, shorter)
+    assert replayed is not None
+    end = simulate(problem, staircase)[-1]
+    assert object_error(problem, 0, replayed[-1][0][None], end[0], 0.0)[0] < 0.005
+    # a bound the plan cannot meet keeps it as it is
+    assert shorten_runs(problem, staircase, weights_, -np.inf) == staircase

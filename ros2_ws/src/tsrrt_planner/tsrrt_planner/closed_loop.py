@@ -49,10 +49,15 @@ _INTENDED_DIRECTION = {1: (1.0, 0.0), 2: (-1.0, 0.0), 3: (0.0, 1.0), 4: (0.0, -1
 
 
 class ExecutionFailed(PlannerError):
-    """A push could not be executed; `code` is the ExecutePrimitive result code."""
+    """A push could not be executed; `code` is the ExecutePrimitive result code.
 
-    def __init__(self, code: int, message: str) -> None:
+    `blocked` marks a push the robot refused before moving (out of reach, or the ball's path
+    runs into another object): nothing changed, and the same push may work from another pose.
+    """
+
+    def __init__(self, code: int, message: str, blocked: bool = False) -> None:
         self.code = code
+        self.blocked = blocked
         super().__init__(message)
 
 
@@ -108,7 +113,8 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
                    toward: tuple[float, float], push_length: float = DEFAULT_PUSH_LENGTH,
                    max_rounds: int = 40,
                    on_trial: Callable[[LearningProgress], None] | None = None,
-                   cancelled: Callable[[], bool] = lambda: False) -> LearningResult:
+                   cancelled: Callable[[], bool] = lambda: False,
+                   prior: Mapping[int, DisplacementStats] | None = None) -> LearningResult:
     """LEARN_MODEL (Fig. 2) for one object, trials ordered so the object stays in the workspace.
 
     Args:
@@ -121,17 +127,21 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
         max_rounds: rounds of all pairs before giving up on convergence.
         on_trial: progress callback after every push.
         cancelled: polled between pushes.
+        prior: statistics learned earlier (e.g. loaded from disk) that trials add to.
 
     Returns:
         Models of every primitive, the trial count, the last pose and whether every rule holds.
     """
     primitives = primitives_for(spec.shape)
     statistics = {p: DisplacementStats() for p in primitives}
+    for p, known in (prior or {}).items():
+        statistics[p] = DisplacementStats(known.count, known.mean.copy(), known.m2.copy())
     pairs = [pair for pair in OPPOSING_PAIRS if pair[0] in primitives]
     trials = 0
     for _ in range(max_rounds):
         if all(rule.done(statistics[p]) for p in primitives):
             break
+        trials_before_round = trials
         for pair in pairs:
             if rule.done(statistics[pair[0]]) and rule.done(statistics[pair[1]]):
                 continue
@@ -139,13 +149,22 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
                 if cancelled():
                     return LearningResult(_models(spec, statistics, push_length), trials, pose,
                                           False, statistics)
-                outcome = execute(spec.id, primitive, push_length)
+                try:
+                    outcome = execute(spec.id, primitive, push_length)
+                except ExecutionFailed as failure:
+                    if not failure.blocked:
+                        raise
+                    # Blocked here; the other pairs move the object and may free it. Skip the
+                    # rest of this pair this round so the object does not drift one way.
+                    break
                 statistics[primitive].update(outcome.displacement)
                 pose = outcome.after
                 trials += 1
                 if on_trial is not None:
                     on_trial(LearningProgress(spec.id, primitive, trials,
                                               np.sqrt(statistics[primitive].variance)))
+        if trials == trials_before_round:
+            break  # every remaining push is blocked from here: more rounds change nothing
     converged = all(rule.done(statistics[p]) for p in primitives)
     return LearningResult(_models(spec, statistics, push_length), trials, pose, converged,
                           statistics)
@@ -242,7 +261,7 @@ class TaskSettings:
     planning_max_nodes: int | None = None  # a node budget makes planning repeatable
     max_pushes: int = 80
     time_budget_s: float = 600.0
-    convergence: float = 0.002        # relative predicted improvement below which we stop
+    convergence: float = 0.01         # relative predicted improvement below which we stop
     seed: int = 0
     max_replans: int = 20
 
@@ -254,6 +273,7 @@ class TaskReport:
     converged: bool = False
     stop_reason: str = ""
     pushes: int = 0
+    planned: int = 0             # pushes in the plan being executed
     replans: int = 0
     planning_s: float = 0.0
     start_cost: float = math.nan
@@ -325,6 +345,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             report.stop_reason = "converged"
             return report
         tracker = PredictionTracker(scenario.objects)
+        report.planned = len(result.steps)
         for k, step in enumerate(result.steps):
             if cancelled():
                 report.stop_reason = "cancelled"

@@ -251,9 +251,12 @@ class ModelStore:
             raise ModelError(f"no forward model for object {object_id!r}, primitive "
                              f"{primitive}; known objects: {sorted(self.classes)}") from None
 
-    def check_covers(self, objects: Sequence[tuple[str, str, str]]) -> None:
-        """Raise ModelFileError unless every (id, class, shape) has a model of each primitive of
-        its shape, learned for the same class."""
+    def check_covers(self, objects: Sequence[tuple[str, str, str]],
+                     every_primitive: bool = True) -> None:
+        """Raise ModelFileError unless every (id, class, shape) has models learned for the same
+        class: of each primitive of its shape, or with every_primitive=False of at least one
+        (a primitive the robot could not try, e.g. blocked while learning, is then simply not
+        available to the planner)."""
         problems = []
         for object_id, object_class, shape in objects:
             stored_class = self.classes.get(object_id)
@@ -264,7 +267,7 @@ class ModelStore:
                 problems.append(f"{object_id}: models are for class {stored_class!r}, the "
                                 f"object is a {object_class!r}")
             missing = [p for p in primitives_for(shape) if (object_id, p) not in self.models]
-            if missing:
+            if missing and (every_primitive or len(missing) == len(primitives_for(shape))):
                 problems.append(f"{object_id}: no model for primitives {missing}")
         if problems:
             raise ModelFileError("forward models do not match the objects: " + "; ".join(problems))
@@ -273,13 +276,16 @@ class ModelStore:
                    ) -> tuple[np.ndarray, np.ndarray]:
         """Displacement per metre of push (n, 6, 3) and availability (n, 6) for the planner.
 
-        Primitive p is column p - 1; primitives a shape does not have are unavailable.
+        Primitive p is column p - 1; primitives a shape does not have, or that have no model,
+        are unavailable.
         """
         rates = np.zeros((len(object_ids), 6, 3))
         available = np.zeros((len(object_ids), 6), bool)
         for i, (object_id, shape) in enumerate(zip(object_ids, shapes, strict=True)):
             for p in primitives_for(shape):
-                model = self.get(object_id, p)
+                if (object_id, p) not in self.models:
+                    continue
+                model = self.models[(object_id, p)]
                 rates[i, p - 1] = model.mean / model.push_length
                 available[i, p - 1] = True
         return rates, available

@@ -69,7 +69,8 @@ class PlanningProblem:
                                         margin=margin)
         self.reachability = reachability if reachability is not None else default_map()
         self.max_substep = max_substep
-        models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects])
+        models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects],
+                            every_primitive=False)
         shapes = [o.shape for o in scenario.objects]
         self.rates, self.available = models.rate_table(self.objects.ids, shapes)
         self.contact = np.zeros((self.n, 6, 2))

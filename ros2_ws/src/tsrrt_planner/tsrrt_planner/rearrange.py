@@ -31,6 +31,7 @@ PATH_PUSH_COST = 0.01   # metres of remaining error one extra push is worth (wei
 KEY_RESOLUTION = 0.002  # metres (and weighted radians) of the duplicate-pose grid
 STEER_FRACTIONS = (1.0, 0.5)  # closed-form push length and half of it
 FIXED_LENGTHS = (0.01, 0.03, 0.06, 0.10)  # detour pushes of fixed length
+PARKING_SPREAD = 0.08  # metres: spread of parking poses sampled around the object
 BALL_ROOM = 0.04  # metres around an object the pusher needs (ball, approach, margins)
 
 
@@ -91,7 +92,7 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     if errors[0] <= tolerance:
         return [], True
     queue = [(errors[0], 0)]  # (f, node)
-    seen = {_key(start, weight, period)}
+    seen = set(_keys(start[None], weight, period))
     expansions = 0
     while queue and expansions < max_expansions:
         tick()
@@ -107,7 +108,7 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
         objects = np.full(len(primitives), index)
         new = problem.predict(state, objects, primitives, lengths, before)
         error = object_error(problem, index, new, goal, weight)
-        keys = [_key(pose, weight, period) for pose in new]
+        keys = _keys(new, weight, period)
         fresh = np.array([key not in seen for key in keys], bool)
         if not fresh.any():
             continue
@@ -132,10 +133,12 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     return (_trace(parents, actions, best) if best else []), False
 
 
-def _key(pose: np.ndarray, weight: float, period: float) -> tuple[int, int, int]:
-    angle = pose[2] % period if period > 0 else 0.0
-    return (round(pose[0] / KEY_RESOLUTION), round(pose[1] / KEY_RESOLUTION),
-            round(weight * angle / KEY_RESOLUTION))
+def _keys(poses: np.ndarray, weight: float, period: float) -> list[tuple[int, int, int]]:
+    """Grid cells (KEY_RESOLUTION) of poses (k, 3), heading reduced modulo the symmetry."""
+    angle = poses[:, 2] % period if period > 0 else np.zeros(len(poses))
+    cells = np.rint(np.column_stack([poses[:, 0], poses[:, 1], weight * angle])
+                    / KEY_RESOLUTION).astype(np.int64)
+    return list(map(tuple, cells.tolist()))
 
 
 def _trace(parents: list[int], actions: list[Push], node: int) -> list[Push]:
@@ -168,6 +171,31 @@ def target_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
     return clear
 
 
+def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                    pending: list[int], samples: int = 8) -> np.ndarray:
+    """(n, n) True at [i, j] when object i placed at its target would stand in the corridor
+    object j (pending, j != i) sweeps going straight from its pose in `state` to its target
+    at its current heading (start included: j standing on i's target is such a conflict).
+    Placing i first would then wall j in, so j should go first; in a cycle one of them has
+    to be parked."""
+    n = problem.n
+    blocks = np.zeros((n, n), bool)
+    pairs = [(i, j) for i in pending for j in pending if i != j]
+    if not pairs:
+        return blocks
+    rows_i, rows_j = (np.array(side) for side in zip(*pairs, strict=True))
+    fractions = np.linspace(0.0, 1.0, samples)
+    k = len(pairs)
+    sweep = np.repeat(state[rows_j], samples, 0)  # (k * samples, 3), heading kept
+    sweep[:, :2] += (np.tile(fractions, k)[:, None]
+                     * np.repeat(target[rows_j, :2] - state[rows_j, :2], samples, 0))
+    clear = footprints_clear(problem, np.repeat(rows_i, samples), np.repeat(target[rows_i],
+                                                                            samples, 0),
+                             np.repeat(rows_j, samples), sweep)
+    blocks[rows_i, rows_j] = ~clear.reshape(k, samples).all(axis=1)
+    return blocks
+
+
 def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                 index: int) -> list[int]:
     """Objects in the way of `index` reaching its target: those standing on its target
@@ -187,16 +215,32 @@ def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
     return [int(j) for j in others[near][np.argsort(distance[near], kind="stable")]]
 
 
+def straight_sweep(state: np.ndarray, target: np.ndarray, index: int,
+                   samples: int = 8) -> np.ndarray:
+    """Poses (samples, 3) of object `index` going straight from its pose in `state` to its
+    target position at its current heading (the corridor it needs, start included)."""
+    fractions = np.linspace(0.0, 1.0, samples)[:, None]
+    sweep = np.repeat(state[index][None], samples, 0)
+    sweep[:, :2] += fractions * (target[index, :2] - state[index, :2])
+    return sweep
+
+
 def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                   index: int, pending: list[int], rng: np.random.Generator, blocked: int,
-                  samples: int = 48) -> np.ndarray:
-    """Free poses (k, 3) for object `index` at its current heading, nearest first: on the table
-    clear of every other object now, of the targets of the other pending objects and of the
-    corridor the `blocked` object sweeps going straight to its target."""
+                  samples: int = 192) -> np.ndarray:
+    """Free poses (k, 3) for object `index` at its current heading, sampled half around it and
+    half anywhere on the table: on the table clear of
+    every other object now, of the targets of the other pending objects and of the corridor
+    the `blocked` object sweeps going straight to its target (straight_sweep); those crossing
+    the fewest corridors of the other pending objects first, then the nearest."""
     x_min, y_min, x_max, y_max = problem.scenario.table.bounds
-    poses = np.column_stack([rng.uniform(x_min, x_max, samples),
-                             rng.uniform(y_min, y_max, samples),
-                             np.full(samples, state[index, 2])])
+    near = samples // 2  # half near the object (short moves), half anywhere on the table
+    poses = np.column_stack([
+        np.concatenate([state[index, 0] + rng.normal(0.0, PARKING_SPREAD, near),
+                        rng.uniform(x_min, x_max, samples - near)]),
+        np.concatenate([state[index, 1] + rng.normal(0.0, PARKING_SPREAD, near),
+                        rng.uniform(y_min, y_max, samples - near)]),
+        np.full(samples, state[index, 2])])
     ok = problem.checker.moved_objects_valid(state, np.full(samples, index), poses)
     for j in pending:
         if j != index and ok.any():
@@ -204,12 +248,24 @@ def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarra
             ok[alive] = footprints_clear(problem, np.full(len(alive), index), poses[alive],
                                          np.full(len(alive), j),
                                          np.repeat(target[j][None], len(alive), 0))
-    a, b = state[blocked, :2], target[blocked, :2]
-    direction = b - a
-    t = np.clip(((poses[:, :2] - a) @ direction) / max(direction @ direction, 1e-12), 0, 1)
-    corridor = np.linalg.norm(a + t[:, None] * direction - poses[:, :2], axis=1)
-    radius = problem.checker.shapes.bounding_radius
-    ok &= corridor > radius[index] + radius[blocked] + problem.checker.margin
+    alive = np.nonzero(ok)[0]
+    if len(alive):
+        sweep = straight_sweep(state, target, blocked)
+        m = len(sweep)
+        clear = footprints_clear(problem, np.full(len(alive) * m, index),
+                                 np.repeat(poses[alive], m, 0), np.full(len(alive) * m, blocked),
+                                 np.tile(sweep, (len(alive), 1)))
+        ok[alive] = clear.reshape(len(alive), m).all(axis=1)
     poses = poses[ok]
-    order = np.argsort(np.linalg.norm(poses[:, :2] - state[index, :2], axis=1), kind="stable")
-    return poses[order]
+    # prefer poses off the straight ways of the other pending objects, then the nearest
+    crossed = np.zeros(len(poses))
+    for j in pending:
+        if j not in (index, blocked) and len(poses):
+            sweep = straight_sweep(state, target, j)
+            m = len(sweep)
+            clear = footprints_clear(problem, np.full(len(poses) * m, index),
+                                     np.repeat(poses, m, 0), np.full(len(poses) * m, j),
+                                     np.tile(sweep, (len(poses), 1)))
+            crossed += ~clear.reshape(len(poses), m).all(axis=1)
+    distance = np.linalg.norm(poses[:, :2] - state[index, :2], axis=1)
+    return poses[np.lexsort((distance, crossed))]

@@ -39,6 +39,7 @@ from tsrrt_planner.lower_bound import local_minimum, random_state
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.rearrange import (
     blockers_of,
+    corridor_blocks,
     object_error,
     object_path,
     parking_poses,
@@ -50,9 +51,17 @@ Push = tuple[int, int, float]  # (object index, primitive, push length)
 MIN_STEER_GAIN = 0.2  # share of an object's squared error a steering push must remove
 NEAR_OPTIMAL = 0.005  # targets within this share of the best target's cost count as optimal
 REARRANGE_TOLERANCE = 0.004  # metres (weighted rho) at which REARRANGE counts an object placed
+SEARCH_EXPANSIONS = 48  # REARRANGE: A* expansions per object and attempt
+LAST_RESORT_EXPANSIONS = 160  # ... when no object got to its target with the usual budget
+TARGET_INSET = 0.002  # metres: REARRANGE aims this far inside the table edges (POLISH ends)
 PARKING_TOLERANCE = 0.01  # metres: how close a parked object must get to its parking pose
+MAX_PARKINGS = 2  # times one object may be parked in one REARRANGE
+MAX_PARKING_SEARCHES = 4  # A* searches one parking attempt may spend
+MAX_CANDIDATES = 4  # objects REARRANGE tries to place in one step (A* each)
 MIRROR_TOLERANCE = 1e-9  # relative cost change that still counts a mirror image as equal
 SHORTCUT_TOLERANCE = 1e-4  # relative cost a shortcut may give up for fewer pushes
+PLAN_COST_TOLERANCE = 3e-3  # relative cost a plan may give up by stopping early
+CUT_POLISH_PUSHES = 8  # polishing pushes after such a cut
 Progress = Callable[["ProgressInfo"], None]
 Cancel = Callable[[], bool] | threading.Event
 
@@ -265,12 +274,33 @@ class _Search:
     def shortcut(self, steps: list[Push]) -> list[Push]:
         """Shorten the plan: re-steer from an early state of the plan straight to its final
         state (then polish), keeping the result when it has fewer pushes and ends within
-        SHORTCUT_TOLERANCE of the original cost; then merge runs of the same push."""
+        SHORTCUT_TOLERANCE of the original cost; then shorten runs of pushes on one object
+        and merge runs of the same push. Before that, a plan is cut at its first state within
+        PLAN_COST_TOLERANCE of its end cost and polished from there, when that is shorter:
+        each push costs the robot a second or more, a 0.3 % better end rarely pays for it."""
         problem = self.problem
         states = simulate(problem, steps)
-        final_cost = float(problem.objective.cost(states[-1]))
+        costs = np.asarray(problem.objective.cost(states))
+        final_cost = float(costs[-1])
         allowed = final_cost + SHORTCUT_TOLERANCE * max(abs(final_cost), 1e-12)
         grid = np.geomspace(problem.min_length, problem.max_length, self.config.length_grid)
+        near_final = final_cost + PLAN_COST_TOLERANCE * max(abs(final_cost), 1e-12)
+        first_near = int(np.argmax(costs <= near_final))
+        if first_near < len(steps):
+            # a plan that got near its end cost early, then took a detour (parking objects)
+            # to gain a little: stop there and polish instead
+            state, polished = states[first_near], []
+            while len(polished) < CUT_POLISH_PUSHES:
+                push = polish_push(problem, state, grid)
+                if push is None:
+                    break
+                polished.append(push)
+                state = problem.apply(state, *push)
+            if first_near + len(polished) < len(steps):
+                steps = steps[:first_near] + polished
+                states = simulate(problem, steps)
+                final_cost = float(problem.objective.cost(states[-1]))
+                allowed = final_cost + SHORTCUT_TOLERANCE * max(abs(final_cost), 1e-12)
         for k in sorted({0, len(steps) // 4, len(steps) // 2}):
             state, replacement = states[k], []
             while len(replacement) < len(steps) - k:
@@ -285,7 +315,41 @@ class _Search:
                     and float(problem.objective.cost(state)) <= allowed):
                 steps = steps[:k] + replacement
                 break
-        return merge_runs(problem, steps)
+        return merge_runs(problem, shorten_runs(problem, steps, self.weights, allowed))
+
+
+def shorten_runs(problem: PlanningProblem, steps: list[Push], weights: np.ndarray,
+                 allowed: float) -> list[Push]:
+    """Replace each run of three or more consecutive pushes on one object by fewer pushes
+    steered (closed form, that object only) from the run's first state to its last pose, when
+    the whole plan then replays validly and ends at cost <= `allowed`. REARRANGE's searched
+    paths hug obstacles in short steps that a few long pushes often replace."""
+    states = list(simulate(problem, steps))
+    k = 0
+    while k < len(steps):
+        end = k
+        while end < len(steps) and steps[end][0] == steps[k][0]:
+            end += 1
+        if end - k >= 3:
+            o = steps[k][0]
+            state, replacement = states[k], []
+            goal = states[k].copy()
+            goal[o] = states[end][o]
+            while len(replacement) < end - k - 1:
+                push = steer_push(problem, state, goal, weights, o)
+                if push is None:
+                    break
+                replacement.append(push)
+                state = problem.apply(state, *push)
+            if replacement and len(replacement) < end - k:
+                replayed = replay_from(problem, states[k], replacement + steps[end:])
+                if replayed is not None and float(problem.objective.cost(replayed[-1])) <= (
+                        allowed):
+                    steps = steps[:k] + replacement + steps[end:]
+                    states = states[:k] + replayed
+                    end = k + len(replacement)
+        k = end
+    return steps
 
 
 def merge_runs(problem: PlanningProblem, steps: list[Push]) -> list[Push]:
@@ -467,10 +531,14 @@ class _TsrrtSearch(_Search):
         return matched[int(np.argmin(self.rho(matched, state)))]
 
     def rearrange(self, node: int, target: np.ndarray) -> int:
-        """REARRANGE (rearrange.py): move the objects to `target` one at a time along searched
-        push paths, objects with a free target first, and park an object that stands in the
-        way when none can go. Returns the last node added (or `node`)."""
+        """REARRANGE (rearrange.py): move the objects to `target` (inset from the table
+        edges) one at a time along searched push paths. Objects whose target would stand in
+        another pending object's straight way (corridor_blocks) wait; of the rest, those with
+        a free target go first. When none gets there (or all wait on each other), an object
+        in the way is parked; when that fails too, the waiting objects are tried. Returns
+        the last node added (or `node`)."""
         problem = self.problem
+        target = inset_from_edges(problem, target, TARGET_INSET)
 
         def error(i: int, state: np.ndarray) -> float:
             return float(object_error(problem, i, state[i][None], target[i],
@@ -478,49 +546,86 @@ class _TsrrtSearch(_Search):
 
         state = self.tree.states[node]
         pending = [i for i in range(problem.n) if error(i, state) > REARRANGE_TOLERANCE]
-        for _ in range(3 * problem.n):
+        parkings: dict[int, int] = {}
+        for _ in range(4 * problem.n):
             if not pending:
                 break
             state = self.tree.states[node]
+            blocks = corridor_blocks(problem, state, target, pending)
             order = sorted(pending, key=lambda i: (
+                bool(blocks[i, pending].any()),
                 not target_free(problem, state, target, i).all(), error(i, state)))
-            placed = False
-            for i in order:
-                path, reached = object_path(problem, self.tree.states[node], i, target[i],
-                                            self.weights[i], self.check_budget,
-                                            REARRANGE_TOLERANCE)
-                node = self.follow(node, path)
-                if reached:
-                    pending.remove(i)
-                    placed = True
-                    break
-            if not placed:
-                parked = self.park(node, target, order, pending)
-                if parked is None:
-                    break
+            ready = [i for i in order if not blocks[i, pending].any()]
+            node, placed = self.place_one(node, target, ready, pending)
+            if placed:
+                continue
+            # nothing free to go (or a cycle): park an object in the way, else try the rest
+            parked = self.park(node, target, ready or order, pending, parkings)
+            if parked is not None:
                 node = parked
+                continue
+            # then those others wait for, as far as they get (out of the way of the targets
+            # that would wall them in), and last the waiting ones
+            waited_for = [j for j in order if blocks[pending, j].any()]
+            moved_from = node
+            node, placed = self.place_one(node, target, waited_for, pending)
+            if placed or node != moved_from:
+                continue
+            node, placed = self.place_one(node, target, [i for i in order if i not in ready],
+                                          pending)
+            if not placed:
+                break
         return node
 
-    def park(self, node: int, target: np.ndarray, order: list[int], pending: list[int]
-             ) -> int | None:
+    def place_one(self, node: int, target: np.ndarray, candidates: list[int],
+                  pending: list[int]) -> tuple[int, bool]:
+        """Move the first of `candidates` that gets to its target there: the first
+        MAX_CANDIDATES with the usual search budget, then (the last way through) the first one
+        with LAST_RESORT_EXPANSIONS; if none gets there, the first one that got closer moves
+        as far as it got. Returns the last node and whether an object was placed."""
+        partial: tuple[int, list[Push]] | None = None
+        for expansions, tried in ((SEARCH_EXPANSIONS, candidates[:MAX_CANDIDATES]),
+                                  (LAST_RESORT_EXPANSIONS, candidates[:1])):
+            for i in tried:
+                path, reached = object_path(self.problem, self.tree.states[node], i,
+                                            target[i], self.weights[i], self.check_budget,
+                                            REARRANGE_TOLERANCE, max_expansions=expansions)
+                if reached:
+                    pending.remove(i)
+                    return self.follow(node, path), True
+                if path and partial is None:
+                    partial = (i, path)
+        return (node if partial is None else self.follow(node, partial[1])), False
+
+    def park(self, node: int, target: np.ndarray, order: list[int], pending: list[int],
+             parked: dict[int, int]) -> int | None:
         """Move an object in the way of one of the first pending objects in `order` to a free
-        pose off every pending target (adding it to `pending`); None when none could move."""
+        pose off every pending target (adding it to `pending`); None when none could move.
+        Pending objects are parked before placed ones, and none more than MAX_PARKINGS times
+        per REARRANGE (`parked` counts them), so parking cannot go round in circles."""
         problem = self.problem
         state = self.tree.states[node]
+        candidates = [(blocked, j) for blocked in order[:3]
+                      for j in blockers_of(problem, state, target, blocked)[:2]
+                      if parked.get(j, 0) < MAX_PARKINGS]
+        candidates.sort(key=lambda pair: pair[1] not in pending)
         tried: set[int] = set()
-        for blocked in order[:3]:
-            for j in blockers_of(problem, state, target, blocked)[:2]:
-                if j in tried:
-                    continue
-                tried.add(j)
-                for pose in parking_poses(problem, state, target, j, pending, self.rng,
-                                              blocked)[:3]:
-                    path, reached = object_path(problem, state, j, pose, self.weights[j],
-                                                self.check_budget, PARKING_TOLERANCE)
-                    if reached and path:
-                        if j not in pending:
-                            pending.append(j)
-                        return self.follow(node, path)
+        searches = 0
+        for blocked, j in candidates:
+            if j in tried or searches >= MAX_PARKING_SEARCHES:
+                continue
+            tried.add(j)
+            poses = parking_poses(problem, state, target, j, pending, self.rng, blocked)
+            far = np.linalg.norm(poses[:, :2] - state[j, :2], axis=1) > 2 * PARKING_TOLERANCE
+            for pose in poses[far][:3]:
+                searches += 1
+                path, reached = object_path(problem, state, j, pose, self.weights[j],
+                                            self.check_budget, PARKING_TOLERANCE)
+                if reached and path:
+                    if j not in pending:
+                        pending.append(j)
+                    parked[j] = parked.get(j, 0) + 1
+                    return self.follow(node, path)
         return None
 
     def follow(self, node: int, path: list[Push]) -> int:
@@ -625,6 +730,19 @@ def polish_push(problem: PlanningProblem, state: np.ndarray, grid: np.ndarray) -
     chosen = _first_valid(problem, state, objects, primitives, lengths, order)
     return None if chosen is None else (int(objects[chosen]), int(primitives[chosen]),
                                         float(lengths[chosen]))
+
+
+def inset_from_edges(problem: PlanningProblem, state: np.ndarray, inset: float) -> np.ndarray:
+    """`state` (n, 3) with footprints closer than `inset` to a table edge moved inwards to
+    `inset`: an optimum on an edge can only be approached from one side, so REARRANGE aims
+    just inside it and POLISH closes the last millimetres."""
+    rows = np.arange(problem.n)
+    clearance = problem.checker.table_clearances_rows(rows, state)  # (n, 4): -x, +x, -y, +y
+    short = np.maximum(inset - clearance, 0.0)
+    moved = state.copy()
+    moved[:, 0] += short[:, 0] - short[:, 1]
+    moved[:, 1] += short[:, 2] - short[:, 3]
+    return moved
 
 
 def interchangeable_groups(problem: PlanningProblem) -> list[np.ndarray]:

@@ -1,0 +1,620 @@
+"""planner_node: LearnModels, PlanTask and RunTask on top of the ROS-free planner core.
+
+Actions (one at a time: there is one arm):
+* /planner/learn_models (LearnModels): LEARN_MODEL (Fig. 2) in place for every object whose
+  models do not yet satisfy the stopping rule, through /executor/execute_primitive; models are
+  saved atomically after every object and published on /planner/models (transient local).
+* /planner/plan_task (PlanTask): anytime TASK_SPACE_RRT (Fig. 4) from the settled observation;
+  cancel returns the best plan so far. The plan goes to /planner/plan and /planner/markers.
+* /planner/run_task (RunTask): learn what is missing, plan, execute push by push, replan when the
+  observation leaves what the models explain (closed_loop.run_task).
+
+Observations come only from perception (/perception/get_settled_objects), never ground truth.
+Callbacks that wait on other servers run in a ReentrantCallbackGroup on a MultiThreadedExecutor
+and wait with timeouts, so a missing executor or perception node ends a goal with a clear error
+instead of a hang.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import Point, Vector3
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from tsrrt_common.errors import TsrrtError
+from tsrrt_common.geometry import Pose2D, footprint_polygon
+from tsrrt_common.scenario import Scenario, load_scenario
+from tsrrt_executor.push_primitives import primitives_for
+from tsrrt_executor.reachability import default_map
+from tsrrt_interfaces.action import ExecutePrimitive, LearnModels, PlanTask, RunTask
+from tsrrt_interfaces.msg import ForwardModel as ForwardModelMsg
+from tsrrt_interfaces.msg import ForwardModelArray, ObjectState, ObjectStateArray, Plan, PlanStep
+from tsrrt_interfaces.srv import GetSettledObjects
+from tsrrt_planner.closed_loop import (
+    ExecutionFailed,
+    LearningProgress,
+    PushOutcome,
+    TaskReport,
+    TaskSettings,
+    learn_in_place,
+    plan_from,
+    run_task,
+    scenario_at,
+)
+from tsrrt_planner.errors import ModelFileError, PlannerError
+from tsrrt_planner.lower_bound import LowerBound, lower_bound
+from tsrrt_planner.model_learning import (
+    ConfidenceStoppingRule,
+    DisplacementStats,
+    ModelStore,
+    PaperStoppingRule,
+    StoppingRule,
+)
+from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.task_space_rrt import MODES, PlanResult
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class GoalFailed(Exception):
+    """Ends a goal early: `reason` names a result constant (e.g. "NO_OBSERVATION").
+
+    The three actions number their codes differently, so the name is resolved against the
+    running action's result type; a reason that action lacks becomes its generic failure.
+    """
+
+    def __init__(self, reason: str, message: str) -> None:
+        self.reason = reason
+        super().__init__(message)
+
+    def code_for(self, result: Any) -> int:
+        for name in (self.reason, "EXECUTION_FAILED", "PLANNING_FAILED", "INVALID_GOAL"):
+            if hasattr(result, name):
+                return int(getattr(result, name))
+        raise AssertionError(f"{type(result).__name__} has no failure code")
+
+
+def _float(low: float, high: float, description: str) -> ParameterDescriptor:
+    return ParameterDescriptor(description=description, floating_point_range=[
+        FloatingPointRange(from_value=low, to_value=high)])
+
+
+def _integer(low: int, high: int, description: str) -> ParameterDescriptor:
+    return ParameterDescriptor(description=description, integer_range=[
+        IntegerRange(from_value=low, to_value=high, step=1)])
+
+
+def default_models_path(scenario_name: str) -> Path:
+    data_home = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(data_home) / "tsrrt" / "models" / f"{scenario_name}.yaml"
+
+
+def wait_for_future(future: rclpy.task.Future, timeout_s: float,
+                    cancelled: Callable[[], bool] = lambda: False) -> bool:
+    """Block this (executor worker) thread until the future is done; False on timeout/cancel."""
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    deadline = time.monotonic() + timeout_s
+    while not done.wait(0.05):
+        if time.monotonic() > deadline or cancelled():
+            return False
+    return True
+
+
+class RosTaskEnvironment:
+    """closed_loop.TaskEnvironment over perception's settled observations and the executor."""
+
+    def __init__(self, node: PlannerNode, object_ids: list[str],
+                 cancelled: Callable[[], bool]) -> None:
+        self.node = node
+        self.object_ids = object_ids
+        self.cancelled = cancelled
+
+    def observe(self) -> dict[str, Pose2D]:
+        states = self.node.settled_objects()
+        self.node.publish_observation(states)
+        poses = {s.id: Pose2D(s.x, s.y, s.theta) for s in states
+                 if s.status != ObjectState.STATUS_LOST}
+        missing = [i for i in self.object_ids if i not in poses]
+        if missing:
+            raise GoalFailed("NO_OBSERVATION",
+                             f"perception does not see {missing}")
+        return poses
+
+    def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        result = self.node.execute_primitive(object_id, primitive, push_length, self.cancelled)
+        if result.error_code != ExecutePrimitive.Result.SUCCESS:
+            blocked = result.error_code == ExecutePrimitive.Result.UNREACHABLE
+            raise ExecutionFailed(result.error_code, result.error_msg, blocked)
+        before, after = result.before, result.after
+        return PushOutcome(Pose2D(before.x, before.y, before.theta),
+                           Pose2D(after.x, after.y, after.theta))
+
+
+class PlannerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("planner_node")
+        self._declare_parameters()
+        self.scenario: Scenario = load_scenario(self.get_parameter("scenario").value,
+                                                self.get_parameter("seed").value)
+        path = self.get_parameter("models_path").value
+        self.models_path = Path(path) if path else default_models_path(self.scenario.name)
+        self.store, self.store_problem = self._load_models()
+        self.reachability = default_map()
+        self._lower_bound: LowerBound | None = None
+        self._busy = threading.Lock()
+        group = ReentrantCallbackGroup()
+
+        self.models_publisher = self.create_publisher(ForwardModelArray, "/planner/models",
+                                                      LATCHED)
+        self.plan_publisher = self.create_publisher(Plan, "/planner/plan", LATCHED)
+        self.markers_publisher = self.create_publisher(MarkerArray, "/planner/markers", LATCHED)
+        # Every settled observation the planner acts on, for reports and replay.
+        self.observed_publisher = self.create_publisher(ObjectStateArray, "/planner/observed",
+                                                        10)
+        self.settled_client = self.create_client(
+            GetSettledObjects, "/perception/get_settled_objects", callback_group=group)
+        self.executor_client = ActionClient(self, ExecutePrimitive,
+                                            "/executor/execute_primitive", callback_group=group)
+        common = dict(goal_callback=self._accept_one, cancel_callback=lambda _: (
+            CancelResponse.ACCEPT), callback_group=group)
+        self.learn_server = ActionServer(self, LearnModels, "/planner/learn_models",
+                                         self._learn_models, **common)
+        self.plan_server = ActionServer(self, PlanTask, "/planner/plan_task", self._plan_task,
+                                        **common)
+        self.run_server = ActionServer(self, RunTask, "/planner/run_task", self._run_task,
+                                       **common)
+        self._publish_models()
+        self.get_logger().info(
+            f"planning {self.scenario.name} ({len(self.scenario.objects)} objects); models: "
+            f"{self.models_path} ({len(self.store.models)} loaded)")
+
+    # ------------------------------------------------------------------ parameters, models
+    def _declare_parameters(self) -> None:
+        declare = self.declare_parameter
+        declare("scenario", "clean", ParameterDescriptor(
+            description="shipped scenario name or path to a scenario YAML", read_only=True))
+        declare("seed", -1, _integer(-1, 2**31 - 1, "placement seed override (-1: the file's)"))
+        declare("models_path", "", ParameterDescriptor(
+            description="forward-model file; empty: $XDG_DATA_HOME/tsrrt/models/<scenario>.yaml",
+            read_only=True))
+        declare("planner", "tsrrt", ParameterDescriptor(
+            description=f"default planner: one of {list(MODES)}"))
+        declare("planning_budget_s", 2.0, _float(0.05, 600.0, "time per (re)plan, s"))
+        declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
+        declare("max_pushes", 80, _integer(1, 10000, "pushes a RunTask may execute"))
+        declare("time_budget_s", 900.0, _float(1.0, 86400.0, "wall time a RunTask may take"))
+        declare("convergence", 0.01, _float(0.0, 1.0,
+                                             "relative predicted improvement to stop at"))
+        declare("stopping_rule", "confidence", ParameterDescriptor(
+            description="'confidence' (mean's 95 % half-width) or 'variance' (paper)"))
+        declare("min_trials", 3, _integer(2, 1000, "fewest trials of a primitive"))
+        declare("max_trials", 12, _integer(2, 1000, "most trials of a primitive"))
+        declare("position_tolerance", 0.004, _float(1e-4, 0.1,
+                                                    "confidence rule: half-width, m"))
+        declare("angle_tolerance", 0.035, _float(1e-4, 1.0,
+                                                 "confidence rule: half-width, rad"))
+        declare("lower_bound_starts", 12, _integer(1, 1000, "multi-starts of the lower bound"))
+        declare("server_timeout_s", 5.0, _float(0.1, 600.0,
+                                                "wait for executor/perception servers, s"))
+        declare("push_timeout_s", 60.0, _float(1.0, 3600.0, "wait for one push, s"))
+        declare("observe_timeout_s", 15.0, _float(0.5, 600.0,
+                                                  "wait for a settled observation, s"))
+
+    def _param(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    def _load_models(self) -> tuple[ModelStore, str | None]:
+        """Models from disk; a corrupt file is reported and never overwritten."""
+        if not self.models_path.exists():
+            return ModelStore(), None
+        try:
+            return ModelStore.load(self.models_path), None
+        except ModelFileError as error:
+            self.get_logger().error(f"{error}; learning will not overwrite it - move it away")
+            return ModelStore(), str(error)
+
+    def _save_models(self) -> None:
+        if self.store_problem is not None:
+            raise GoalFailed("EXECUTION_FAILED",
+                             f"not saving over the unreadable model file: {self.store_problem}")
+        self.models_path.parent.mkdir(parents=True, exist_ok=True)
+        self.store.save(self.models_path)
+        self._publish_models()
+
+    def _stopping_rule(self, name: str, max_trials: int) -> StoppingRule:
+        name = name or self._param("stopping_rule")
+        max_trials = max_trials or self._param("max_trials")
+        min_trials = min(self._param("min_trials"), max_trials)
+        if name == "confidence":
+            return ConfidenceStoppingRule(self._param("position_tolerance"),
+                                          self._param("angle_tolerance"),
+                                          min_trials=min_trials, max_trials=max_trials)
+        if name == "variance":
+            return PaperStoppingRule(min_trials=min_trials, max_trials=max_trials)
+        raise GoalFailed("INVALID_GOAL",
+                         f"unknown stopping rule {name!r}; known: 'confidence', 'variance'")
+
+    def _needs_learning(self, object_id: str, shape_primitives: tuple[int, ...],
+                        rule: StoppingRule) -> bool:
+        for primitive in shape_primitives:
+            model = self.store.models.get((object_id, primitive))
+            if model is None or self.store.classes.get(object_id) != self.scenario.object(
+                    object_id).object_class:
+                return True
+            if not rule.done(DisplacementStats(model.count, model.mean.copy(),
+                                               model.m2.copy())):
+                return True
+        return False
+
+    def _models_message(self) -> ForwardModelArray:
+        rule = self._stopping_rule("", 0)
+        message = ForwardModelArray()
+        message.header.stamp = self.get_clock().now().to_msg()
+        for (object_id, primitive), model in sorted(self.store.models.items()):
+            statistics = DisplacementStats(model.count, model.mean.copy(), model.m2.copy())
+            message.models.append(ForwardModelMsg(
+                object_id=object_id, object_class=self.store.classes.get(object_id, ""),
+                primitive=primitive, nominal_push_length=float(model.push_length),
+                samples=int(model.count), mean=[float(v) for v in model.mean],
+                variance=[float(v) for v in model.variance], converged=rule.done(statistics)))
+        return message
+
+    def _publish_models(self) -> None:
+        self.models_publisher.publish(self._models_message())
+
+    def publish_observation(self, states: list[ObjectState]) -> None:
+        message = ObjectStateArray(objects=states)
+        message.header.stamp = self.get_clock().now().to_msg()
+        message.header.frame_id = "world"
+        self.observed_publisher.publish(message)
+
+    # ------------------------------------------------------------------ calls to other nodes
+    def settled_objects(self) -> list[ObjectState]:
+        if not self.settled_client.wait_for_service(timeout_sec=self._param("server_timeout_s")):
+            raise GoalFailed("NO_OBSERVATION",
+                             "perception's /perception/get_settled_objects is not available")
+        timeout = self._param("observe_timeout_s")
+        future = self.settled_client.call_async(GetSettledObjects.Request(timeout_s=timeout))
+        if not wait_for_future(future, timeout + 5.0):
+            raise GoalFailed("NO_OBSERVATION",
+                             f"no settled observation within {timeout:.0f} s")
+        response = future.result()
+        if not response.success:
+            raise GoalFailed("NO_OBSERVATION",
+                             f"perception: {response.message}")
+        return list(response.objects.objects)
+
+    def execute_primitive(self, object_id: str, primitive: int, push_length: float,
+                          cancelled: Callable[[], bool]) -> ExecutePrimitive.Result:
+        if not self.executor_client.wait_for_server(timeout_sec=self._param("server_timeout_s")):
+            raise GoalFailed("EXECUTOR_UNAVAILABLE",
+                             "the executor's /executor/execute_primitive is not available")
+        goal = ExecutePrimitive.Goal(object_id=object_id, primitive=primitive,
+                                     push_length=float(push_length))
+        sent = self.executor_client.send_goal_async(goal)
+        if not wait_for_future(sent, self._param("server_timeout_s")):
+            raise GoalFailed("EXECUTOR_UNAVAILABLE",
+                             "the executor did not answer the goal")
+        handle = sent.result()
+        if not handle.accepted:
+            raise GoalFailed("EXECUTION_FAILED", "the executor rejected the push")
+        result_future = handle.get_result_async()
+        if not wait_for_future(result_future, self._param("push_timeout_s"), cancelled):
+            cancel_future = handle.cancel_goal_async()
+            wait_for_future(cancel_future, self._param("server_timeout_s"))
+            # The executor retreats before it answers a cancel; wait for that answer.
+            wait_for_future(result_future, self._param("push_timeout_s"))
+            if cancelled():
+                raise GoalFailed("CANCELED", "cancelled during a push")
+            raise GoalFailed("EXECUTION_FAILED",
+                             f"push of {object_id} took longer than "
+                             f"{self._param('push_timeout_s'):.0f} s")
+        return result_future.result().result
+
+    # ------------------------------------------------------------------ actions
+    def _accept_one(self, goal: object) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning("rejecting a goal: another task is running")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _run_exclusive(self, goal_handle, result, work: Callable[[], None]):
+        """Run `work`, mapping GoalFailed and library errors to the result's code/message."""
+        if not self._busy.acquire(blocking=False):
+            result.error_code = result.INVALID_GOAL
+            result.error_msg = "another task is running"
+            goal_handle.abort()
+            return result
+        try:
+            work()
+            result.error_code = result.SUCCESS
+            goal_handle.succeed()
+        except GoalFailed as failure:
+            result.error_code, result.error_msg = failure.code_for(result), str(failure)
+            self._finish(goal_handle, failure.reason == "CANCELED")
+        except ExecutionFailed as failure:
+            reason = ("UNREACHABLE" if failure.code == ExecutePrimitive.Result.UNREACHABLE
+                      else "EXECUTION_FAILED")
+            result.error_code = GoalFailed(reason, "").code_for(result)
+            result.error_msg = f"executor: {failure}"
+            self._finish(goal_handle, failure.code == ExecutePrimitive.Result.CANCELED)
+        except (TsrrtError, ValueError) as failure:
+            result.error_code, result.error_msg = result.INVALID_GOAL, str(failure)
+            self._finish(goal_handle, False)
+        finally:
+            self._busy.release()
+        if result.error_code != result.SUCCESS:
+            self.get_logger().error(f"goal failed: {result.error_msg}")
+        return result
+
+    @staticmethod
+    def _finish(goal_handle, cancelled: bool) -> None:
+        if cancelled and goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+
+    def _learn_models(self, goal_handle) -> LearnModels.Result:
+        result = LearnModels.Result()
+        goal = goal_handle.request
+
+        def work() -> None:
+            ids = list(goal.object_ids) or [o.id for o in self.scenario.objects]
+            known = [o.id for o in self.scenario.objects]
+            unknown = [i for i in ids if i not in known]
+            if unknown:
+                raise GoalFailed("UNKNOWN_OBJECT", f"unknown objects {unknown}; known: "
+                                 f"{known}")
+            rule = self._stopping_rule(goal.stopping_rule, goal.max_trials_per_primitive)
+            result.trials = self._learn(
+                ids, rule, lambda: goal_handle.is_cancel_requested,
+                lambda progress, total: goal_handle.publish_feedback(LearnModels.Feedback(
+                    object_id=progress.object_id, primitive=progress.primitive,
+                    trials_done=total, sigma=[float(v) for v in progress.sigma])))
+            result.models = self._models_message().models
+
+        return self._run_exclusive(goal_handle, result, work)
+
+    def _learn(self, ids: list[str], rule: StoppingRule, cancelled: Callable[[], bool],
+               on_trial: Callable[[LearningProgress, int], None]) -> int:
+        """LEARN_MODEL for each listed object that needs it; returns the number of trials.
+
+        `on_trial` gets each trial's progress and the trials done so far over all objects.
+        """
+        environment = RosTaskEnvironment(self, [o.id for o in self.scenario.objects],
+                                         cancelled)
+        trials = 0
+        for object_id in ids:
+            spec = self.scenario.object(object_id)
+            if not self._needs_learning(object_id, primitives_for(spec.shape), rule):
+                continue
+            pose = environment.observe()[object_id]
+            self.get_logger().info(f"learning push models of {object_id}")
+            done_before = trials
+            prior = {p: DisplacementStats(m.count, m.mean.copy(), m.m2.copy())
+                     for (o, p), m in self.store.models.items() if o == object_id}
+            learned = learn_in_place(
+                spec, pose, environment.execute, rule, toward=self.scenario.table.center,
+                on_trial=lambda progress, before=done_before: on_trial(
+                    progress, before + progress.trials),
+                cancelled=cancelled, prior=prior)
+            trials += learned.trials
+            for model in learned.models.values():
+                self.store.add(model, spec.object_class)
+            self._save_models()
+            if cancelled():
+                raise GoalFailed("CANCELED", "cancelled while learning")
+            if not learned.converged:
+                self.get_logger().warning(f"{object_id}: models did not converge within the "
+                                          "trial limit; planning with them anyway")
+        return trials
+
+    def _bound(self, problem: PlanningProblem) -> LowerBound:
+        """The lower bound depends on the scenario, not the start: computed once."""
+        if self._lower_bound is None:
+            self._lower_bound = lower_bound(problem, starts=self._param("lower_bound_starts"))
+        return self._lower_bound
+
+    def _settings(self, planner: str, budget_s: float, max_pushes: int = 0,
+                  time_budget_s: float = 0.0, seed: int = -1) -> TaskSettings:
+        planner = planner or self._param("planner")
+        if planner not in MODES:
+            raise GoalFailed("INVALID_GOAL",
+                             f"unknown planner {planner!r}; known: {list(MODES)}")
+        for name, value in (("budget", budget_s), ("time budget", time_budget_s)):
+            if not math.isfinite(value) or value < 0:
+                raise GoalFailed("INVALID_GOAL", f"{name} must be >= 0 s")
+        return TaskSettings(
+            planner=planner, planning_budget_s=budget_s or self._param("planning_budget_s"),
+            max_pushes=max_pushes or self._param("max_pushes"),
+            time_budget_s=time_budget_s or self._param("time_budget_s"),
+            convergence=self._param("convergence"),
+            seed=seed if seed >= 0 else self._param("planner_seed"))
+
+    def _check_models(self, reason: str) -> None:
+        """Every object needs models; a primitive without one (never tried: it was blocked
+        while learning) is left out of planning, with a warning."""
+        objects = [(o.id, o.object_class, o.shape) for o in self.scenario.objects]
+        try:
+            self.store.check_covers(objects, every_primitive=False)
+        except ModelFileError as error:
+            raise GoalFailed(reason, str(error)) from None
+        try:
+            self.store.check_covers(objects)
+        except ModelFileError as error:
+            self.get_logger().warning(f"planning without some primitives: {error}")
+
+    def _plan_task(self, goal_handle) -> PlanTask.Result:
+        result = PlanTask.Result()
+        goal = goal_handle.request
+
+        def work() -> None:
+            settings = self._settings(goal.planner, goal.budget_s, seed=goal.seed)
+            self._check_models("NO_MODELS")
+            ids = [o.id for o in self.scenario.objects]
+            cancelled = lambda: goal_handle.is_cancel_requested  # noqa: E731
+            observed = RosTaskEnvironment(self, ids, cancelled).observe()
+            problem = self._problem_at(observed, "INFEASIBLE_START")
+            bound = self._bound(problem)
+            began = time.monotonic()
+
+            def feedback(info) -> None:
+                goal_handle.publish_feedback(PlanTask.Feedback(
+                    best_cost=float(info.best_cost), gap=_gap(info.best_cost, bound.cost),
+                    nodes=int(info.nodes), elapsed_s=time.monotonic() - began))
+
+            _, plan = plan_from(self.scenario, observed, self.store, self.reachability,
+                                settings, bound.cost, bound.state, cancelled, feedback,
+                                goal.max_nodes or None)
+            result.plan = self._publish_plan(plan)
+            result.nodes, result.planning_s = plan.nodes, plan.elapsed_s
+            if not plan.steps:
+                raise GoalFailed("NO_IMPROVEMENT",
+                                 "no push lowers the objective from the observed state")
+
+        return self._run_exclusive(goal_handle, result, work)
+
+    def _problem_at(self, observed: dict[str, Pose2D], reason: str) -> PlanningProblem:
+        try:
+            return PlanningProblem(scenario_at(self.scenario, observed), self.store,
+                                   self.reachability)
+        except PlannerError as error:
+            raise GoalFailed(reason, str(error)) from None
+
+    def _run_task(self, goal_handle) -> RunTask.Result:
+        result = RunTask.Result()
+        goal = goal_handle.request
+
+        def work() -> None:
+            settings = self._settings(goal.planner, goal.planning_budget_s, goal.max_pushes,
+                                      goal.time_budget_s)
+            cancelled = lambda: goal_handle.is_cancel_requested  # noqa: E731
+            ids = [o.id for o in self.scenario.objects]
+            result.learning_trials = self._learn(
+                ids, self._stopping_rule("", 0), cancelled,
+                lambda progress, total: goal_handle.publish_feedback(RunTask.Feedback(
+                    phase="learning", pushes_done=total)))
+            self._check_models("LEARNING_FAILED")
+            environment = RosTaskEnvironment(self, ids, cancelled)
+            bound = self._bound(self._problem_at(environment.observe(), "PLANNING_FAILED"))
+
+            def on_event(phase: str, report: TaskReport) -> None:
+                goal_handle.publish_feedback(RunTask.Feedback(
+                    phase=phase, pushes_done=report.pushes, pushes_planned=report.planned,
+                    current_cost=report.final_cost,
+                    best_predicted_cost=report.predicted_cost, replans=report.replans))
+
+            report = run_task(self.scenario, self.store, environment, self.reachability,
+                              settings, bound.cost, bound.state, on_event, cancelled,
+                              on_model_update=self._save_models)
+            result.final_cost, result.predicted_cost = report.final_cost, report.predicted_cost
+            result.lower_bound, result.pushes = bound.cost, report.pushes
+            result.replans, result.planning_s = report.replans, report.planning_s
+            last = report.visited[-1]
+            result.final_objects = [_object_state(spec, last[spec.id])
+                                    for spec in self.scenario.objects]
+            if report.stop_reason == "cancelled":
+                raise GoalFailed("CANCELED", "cancelled")
+            if report.stop_reason != "converged":
+                raise GoalFailed("BUDGET_EXHAUSTED",
+                                 f"stopped by the {report.stop_reason} before converging")
+
+        return self._run_exclusive(goal_handle, result, work)
+
+    # ------------------------------------------------------------------ plan output
+    def _publish_plan(self, plan: PlanResult) -> Plan:
+        message = Plan()
+        message.header.stamp = self.get_clock().now().to_msg()
+        message.header.frame_id = "world"
+        specs = self.scenario.objects
+        message.start = [_object_state(s, Pose2D(*plan.states[0][i]))
+                         for i, s in enumerate(specs)]
+        for k, step in enumerate(plan.steps):
+            message.steps.append(PlanStep(
+                object_id=step.object_id, primitive=step.primitive,
+                push_length=float(step.push_length),
+                predicted=[_object_state(s, Pose2D(*plan.states[k + 1][i]))
+                           for i, s in enumerate(specs)],
+                predicted_cost=float(plan.costs[k + 1])))
+        message.start_cost = float(plan.costs[0])
+        message.predicted_cost = plan.best_cost
+        bound = plan.lower_bound if plan.lower_bound is not None else math.nan
+        message.lower_bound = float(bound)
+        message.gap = _gap(plan.best_cost, bound)
+        self.plan_publisher.publish(message)
+        self.markers_publisher.publish(self._plan_markers(plan, message.header))
+        return message
+
+    def _plan_markers(self, plan: PlanResult, header) -> MarkerArray:
+        """Outlines of every object along the plan, fading from start to goal (Fig. 1/6/7)."""
+        markers = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
+        count = len(plan.states)
+        for i, spec in enumerate(self.scenario.objects):
+            red, green, blue = spec.color
+            for k, state in enumerate(plan.states):
+                outline = footprint_polygon(spec.shape, spec.length, spec.width,
+                                            Pose2D(*state[i]))
+                alpha = 0.25 + 0.75 * k / max(count - 1, 1)
+                markers.markers.append(Marker(
+                    header=header, ns=f"plan/{spec.id}", id=k, type=Marker.LINE_STRIP,
+                    action=Marker.ADD, scale=_scale(0.002),
+                    color=ColorRGBA(r=red, g=green, b=blue, a=alpha),
+                    points=[Point(x=float(x), y=float(y), z=self.scenario.table.height + 0.001)
+                            for x, y in np.vstack([outline, outline[:1]])]))
+        return markers
+
+
+def _scale(width: float) -> Vector3:
+    return Vector3(x=width, y=width, z=width)
+
+
+def _gap(cost: float, bound: float) -> float:
+    if not math.isfinite(bound):
+        return math.nan
+    return float((cost - bound) / max(abs(bound), 1e-12))
+
+
+def _object_state(spec, pose: Pose2D) -> ObjectState:
+    return ObjectState(id=spec.id, object_class=spec.object_class, shape=spec.shape,
+                       x=float(pose.x), y=float(pose.y), theta=float(pose.theta),
+                       length=float(spec.length), width=float(spec.width),
+                       height=float(spec.height), symmetry=int(spec.symmetry), confidence=1.0,
+                       status=ObjectState.STATUS_TRACKED)
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PlannerNode()
+        executor = MultiThreadedExecutor(num_threads=4)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
