@@ -5,13 +5,18 @@ on an object as soon as its push is blocked. On a crowded table objects lock eac
 platter needs the spot a plate sits in and the plate cannot get past the platter, so almost every
 straight push is blocked. REARRANGE plans the moves in an order instead:
 
-* objects whose target footprint is free go first, each along a path of pushes found by a small
-  best-first search over that object's pose with every other object fixed (`object_path`):
+* an object whose target would stand in another pending object's straight way to its target
+  waits until that one has gone (`corridor_blocks`: the platters' central targets would wall
+  in a plate that still has to cross the table);
+* of the rest, objects whose target footprint is free go first, each along a path of pushes
+  found by a small best-first search over that object's pose with every other object fixed
+  (`object_path`):
   variable-length pushes, the closed-form steering length among them, so a path can go around a
   neighbour, turn a box before sliding it, or leave the reach-limited strip near the robot;
 * when no pending object can get to its target, an object standing on a pending target (or in
   the way of one) is parked: moved to a free pose on the table that overlaps no pending target
-  (`parking_poses`), after which the blocked object goes and the parked one follows later.
+  and, if it can, no pending object's way (`parking_poses`), after which the blocked object
+  goes and the parked one follows later.
 
 Every push of a path was checked with the full push validity (problem.pushes_valid) in the state
 it is applied to, so a path added to the tree is consistent with the models and constraints.
@@ -225,14 +230,26 @@ def straight_sweep(state: np.ndarray, target: np.ndarray, index: int,
     return sweep
 
 
+def crosses_sweep(problem: PlanningProblem, index: int, poses: np.ndarray, other: int,
+                  sweep: np.ndarray) -> np.ndarray:
+    """(k,) True where object `index` at poses (k, 3) comes closer than the margin to object
+    `other` at any of the poses (m, 3) of its sweep."""
+    k, m = len(poses), len(sweep)
+    if k == 0:
+        return np.zeros(0, bool)
+    clear = footprints_clear(problem, np.full(k * m, index), np.repeat(poses, m, 0),
+                             np.full(k * m, other), np.tile(sweep, (k, 1)))
+    return ~clear.reshape(k, m).all(axis=1)
+
+
 def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                   index: int, pending: list[int], rng: np.random.Generator, blocked: int,
                   samples: int = 192) -> np.ndarray:
     """Free poses (k, 3) for object `index` at its current heading, sampled half around it and
-    half anywhere on the table: on the table clear of
-    every other object now, of the targets of the other pending objects and of the corridor
-    the `blocked` object sweeps going straight to its target (straight_sweep); those crossing
-    the fewest corridors of the other pending objects first, then the nearest."""
+    half anywhere on the table: on the table clear of every other object now, of the targets
+    of the other pending objects and of the corridor the `blocked` object sweeps going
+    straight to its target (straight_sweep); those crossing the fewest corridors of the other
+    pending objects first, then the nearest."""
     x_min, y_min, x_max, y_max = problem.scenario.table.bounds
     near = samples // 2  # half near the object (short moves), half anywhere on the table
     poses = np.column_stack([
@@ -249,23 +266,13 @@ def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarra
                                          np.full(len(alive), j),
                                          np.repeat(target[j][None], len(alive), 0))
     alive = np.nonzero(ok)[0]
-    if len(alive):
-        sweep = straight_sweep(state, target, blocked)
-        m = len(sweep)
-        clear = footprints_clear(problem, np.full(len(alive) * m, index),
-                                 np.repeat(poses[alive], m, 0), np.full(len(alive) * m, blocked),
-                                 np.tile(sweep, (len(alive), 1)))
-        ok[alive] = clear.reshape(len(alive), m).all(axis=1)
+    ok[alive] = ~crosses_sweep(problem, index, poses[alive], blocked,
+                               straight_sweep(state, target, blocked))
     poses = poses[ok]
     # prefer poses off the straight ways of the other pending objects, then the nearest
     crossed = np.zeros(len(poses))
     for j in pending:
-        if j not in (index, blocked) and len(poses):
-            sweep = straight_sweep(state, target, j)
-            m = len(sweep)
-            clear = footprints_clear(problem, np.full(len(poses) * m, index),
-                                     np.repeat(poses, m, 0), np.full(len(poses) * m, j),
-                                     np.tile(sweep, (len(poses), 1)))
-            crossed += ~clear.reshape(len(poses), m).all(axis=1)
+        if j not in (index, blocked):
+            crossed += crosses_sweep(problem, index, poses, j, straight_sweep(state, target, j))
     distance = np.linalg.norm(poses[:, :2] - state[index, :2], axis=1)
     return poses[np.lexsort((distance, crossed))]
