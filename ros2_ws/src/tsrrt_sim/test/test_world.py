@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 from tsrrt_common.geometry import angle_difference_modulo_symmetry
-from tsrrt_common.robot_model import ARM_JOINT_NAMES, READY_POSTURE
+from tsrrt_common.robot_model import ARM_JOINT_NAMES, OBSERVE_POSTURE, READY_POSTURE
 from tsrrt_common.scenario import load_scenario, parse_scenario, shipped_scenarios
 from tsrrt_sim.bench import push_trajectory
 from tsrrt_sim.render_worker import RenderWorker
-from tsrrt_sim.snapshot import move_arm_out_of_view
 from tsrrt_sim.trajectory_controller import (
     ExecutionStatus,
     Tolerances,
@@ -23,7 +22,8 @@ from tsrrt_sim.world import SimWorld, SimWorldError
 
 @pytest.fixture
 def world():
-    sim = SimWorld(load_scenario("obstacle"))
+    # Tracking and pushing are tested from the ready posture, above the table.
+    sim = SimWorld(load_scenario("obstacle"), initial_posture=READY_POSTURE)
     sim.settle(0.5)
     yield sim
     sim.close()
@@ -206,10 +206,18 @@ CAMERA_TEST_SCENARIO = {
 
 @pytest.fixture(scope="module")
 def camera_world():
-    sim = SimWorld(parse_scenario(CAMERA_TEST_SCENARIO, "camera_test"))
-    move_arm_out_of_view(sim)
+    sim = SimWorld(parse_scenario(CAMERA_TEST_SCENARIO, "camera_test"))  # arm out of view
+    sim.settle(1.0)     # objects start 0.5 mm above the table
     yield sim
     sim.close()
+
+
+def test_arm_starts_out_of_the_cameras_view(camera_world):
+    """By default the arm waits in OBSERVE_POSTURE, where no pixel shows it."""
+    np.testing.assert_allclose(camera_world.joint_state().positions, OBSERVE_POSTURE, atol=1e-3)
+    frame = camera_world.render()
+    tallest = max(spec.height for spec in camera_world.scenario.objects)
+    assert frame.depth.min() > camera_world.camera.position[2] - tallest - 1e-3
 
 
 def test_camera_sees_object_tops_where_the_intrinsics_project_them(camera_world):

@@ -2,8 +2,9 @@
 
     python -m tsrrt_sim.snapshot --scenario clean --out out/snapshot
 
-Loads the scenario, moves the arm out of the camera's view, lets the objects settle and writes
-DIR/camera.png (RGB), DIR/depth.png (16-bit, millimetres) and DIR/objects.json (true poses).
+Loads the scenario (the arm starts in OBSERVE_POSTURE, out of the camera's view), lets the
+objects settle and writes DIR/camera.png (RGB), DIR/depth.png (16-bit, millimetres) and
+DIR/objects.json (true poses).
 """
 
 from __future__ import annotations
@@ -17,28 +18,10 @@ import cv2
 import numpy as np
 
 from tsrrt_common.errors import TsrrtError
-from tsrrt_common.robot_model import ARM_JOINT_NAMES
 from tsrrt_common.scenario import load_scenario
-from tsrrt_sim.trajectory_controller import validate_trajectory
 from tsrrt_sim.world import SimWorld
 
-# Arm folded back over its base: nothing of it is inside the camera's field of view.
-OUT_OF_VIEW_POSTURE = (0.0, -1.4, 0.0, -2.9, 0.0, 1.6, 0.785398)
-MOVE_DURATION_S = 2.0
 SETTLE_S = 1.0
-
-
-def move_arm_out_of_view(world: SimWorld) -> None:
-    """Drive the arm to OUT_OF_VIEW_POSTURE with the trajectory controller and wait."""
-    trajectory = validate_trajectory(ARM_JOINT_NAMES, [MOVE_DURATION_S], [OUT_OF_VIEW_POSTURE],
-                                     [[]], [[]], world.kinematics.limits)
-    controller = world.controller
-    execution = controller.start(trajectory, controller.default_tolerances, world.sim_time,
-                                 world.sim_time)
-    world.settle(MOVE_DURATION_S + SETTLE_S)
-    if not execution.done or execution.error_string:
-        raise TsrrtError(f"moving the arm out of view failed: {execution.status.value} "
-                         f"{execution.error_string}")
 
 
 def take_snapshot(scenario_name: str, out_dir: Path, seed: int | None = None) -> dict:
@@ -46,7 +29,7 @@ def take_snapshot(scenario_name: str, out_dir: Path, seed: int | None = None) ->
     scenario = load_scenario(scenario_name, seed)
     world = SimWorld(scenario)
     try:
-        move_arm_out_of_view(world)
+        world.settle(SETTLE_S)
         frame = world.render()
         poses = world.object_poses(include_obstacles=True)
     finally:

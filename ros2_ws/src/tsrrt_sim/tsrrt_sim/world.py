@@ -24,7 +24,12 @@ import pybullet
 from tsrrt_common.camera import R_WORLD_OPTICAL, OverheadCamera
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, wrap_angle
-from tsrrt_common.robot_model import ARM_JOINT_NAMES, READY_POSTURE, TOOL_FRAME, pusher_urdf_path
+from tsrrt_common.robot_model import (
+    ARM_JOINT_NAMES,
+    OBSERVE_POSTURE,
+    TOOL_FRAME,
+    pusher_urdf_path,
+)
 from tsrrt_common.scenario import ObjectSpec, Scenario
 from tsrrt_sim.kinematics import PusherKinematics
 from tsrrt_sim.trajectory_controller import ControllerGains, Tolerances, TrajectoryController
@@ -221,18 +226,25 @@ class SimWorld:
         camera: the overhead camera to render with.
         simple_robot_visuals: render the arm with its collision meshes (see simple_visuals_urdf).
         gains, tolerances: of the trajectory controller.
+        initial_posture: (7,) joint positions the arm starts in (and returns to on a reset);
+            by default out of the camera's view, so that every object can be seen at once.
     """
 
     def __init__(self, scenario: Scenario, *, gui: bool = False,
                  physics_hz: float = DEFAULT_PHYSICS_HZ,
                  camera: OverheadCamera = DEFAULT_CAMERA, simple_robot_visuals: bool = True,
                  gains: ControllerGains = DEFAULT_GAINS,
-                 tolerances: Tolerances = DEFAULT_TOLERANCES) -> None:
+                 tolerances: Tolerances = DEFAULT_TOLERANCES,
+                 initial_posture: tuple[float, ...] = OBSERVE_POSTURE) -> None:
         if not (math.isfinite(physics_hz) and physics_hz > 0):
             raise SimWorldError(f"physics_hz must be positive, got {physics_hz}")
         self.physics_hz = physics_hz
         self.time_step = 1.0 / physics_hz
         self.camera = camera
+        self.initial_posture = tuple(float(v) for v in initial_posture)
+        if len(self.initial_posture) != len(ARM_JOINT_NAMES):
+            raise SimWorldError(f"initial_posture needs {len(ARM_JOINT_NAMES)} joint positions, "
+                                f"got {len(self.initial_posture)}")
         self._urdf_path = pusher_urdf_path()
         self._visual_urdf_path = (simple_visuals_urdf(self._urdf_path) if simple_robot_visuals
                                   else self._urdf_path)
@@ -243,7 +255,7 @@ class SimWorld:
         self._joint_indices = list(range(len(ARM_JOINT_NAMES)))
         self.controller = TrajectoryController(
             self.kinematics.limits, self._inverse_dynamics, self.kinematics.tool_position,
-            tolerances, np.array(READY_POSTURE), gains)
+            tolerances, np.array(self.initial_posture), gains)
         self.scenario = scenario
         self.sim_time = 0.0
         self._step_count = 0
@@ -252,7 +264,7 @@ class SimWorld:
 
     # ------------------------------------------------------------------------------- building
     def load_scenario(self, scenario: Scenario) -> None:
-        """Rebuild the world for `scenario`: arm at READY_POSTURE, objects at their poses.
+        """Rebuild the world for `scenario`: arm at its initial posture, objects at their poses.
 
         Simulation time keeps running (a /clock never goes backwards); any goal is aborted.
         """
@@ -268,7 +280,7 @@ class SimWorld:
         for spec in (*scenario.obstacles, *scenario.objects):
             self._bodies[spec.id] = self._create_object(spec, scenario.table.height)
             self._specs[spec.id] = spec
-        self.controller.reset(np.array(READY_POSTURE))
+        self.controller.reset(np.array(self.initial_posture))
         self._last_torques = np.zeros(len(ARM_JOINT_NAMES))
 
     def _load_robot(self) -> int:
@@ -288,7 +300,7 @@ class SimWorld:
             if self._visual_urdf_path != self._urdf_path:
                 client.changeVisualShape(robot, link, rgbaColor=ARM_COLOR)
         client.changeDynamics(robot, self._tool_link, lateralFriction=PUSHER_FRICTION)
-        for joint, position in zip(self._joint_indices, READY_POSTURE, strict=True):
+        for joint, position in zip(self._joint_indices, self.initial_posture, strict=True):
             client.resetJointState(robot, joint, position, 0.0)
         # PyBullet drives every joint with a velocity motor by default; torque control only
         # works once those motors are given zero force.

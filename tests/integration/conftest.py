@@ -1,0 +1,200 @@
+"""Shared machinery of the integration tests: nodes as processes on a private ROS domain, and a
+probe node that records topics and calls services and actions.
+
+Each test module gets a random ROS domain of its own (localhost discovery only), so concurrent
+runs and stray nodes on the machine do not interfere. Every process started through `launch` is
+stopped at the module's teardown (SIGINT to its process group, SIGKILL if it does not exit), and
+its output goes to a log file that a failing test can show.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+
+PACKAGES_DIR = Path(__file__).resolve().parents[2] / "ros2_ws" / "src"
+
+
+def free_domain_id(taken: set[str]) -> int:
+    """A ROS domain id (1..101: valid UDP ports on Linux) not in `taken`."""
+    while True:
+        candidate = random.randint(1, 101)
+        if str(candidate) not in taken:
+            return candidate
+
+
+class NodeProcess:
+    """A node run as `python -m <package>.<node> --ros-args ...`, output in a log file."""
+
+    def __init__(self, name: str, popen: subprocess.Popen, log_path: Path) -> None:
+        self.name = name
+        self.popen = popen
+        self.log_path = log_path
+
+    @property
+    def running(self) -> bool:
+        return self.popen.poll() is None
+
+    def stop(self, sig: int = signal.SIGINT) -> int:
+        """Signal the process group, wait, escalate to SIGKILL; returns the exit code."""
+        if self.popen.poll() is None:
+            os.killpg(self.popen.pid, sig)
+            try:
+                self.popen.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.popen.pid, signal.SIGKILL)
+                self.popen.wait(timeout=10)
+        return self.popen.returncode
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+
+class Launcher:
+    """Starts nodes with their package's parameter file; stops them all at the end."""
+
+    def __init__(self, env: dict[str, str], log_dir: Path) -> None:
+        self.env = env
+        self.log_dir = log_dir
+        self.processes: list[NodeProcess] = []
+
+    def start(self, package: str, node: str, *parameters: str, params_file: bool = True,
+              env: dict[str, str] | None = None) -> NodeProcess:
+        """Start `package.node` with config/<node>.yaml (if params_file) and `-p` parameters."""
+        args = [sys.executable, "-m", f"{package}.{node}", "--ros-args"]
+        if params_file:
+            args += ["--params-file", str(PACKAGES_DIR / package / "config" / f"{node}.yaml")]
+        for parameter in parameters:
+            args += ["-p", parameter]
+        log_path = self.log_dir / f"{node}_{len(self.processes)}.log"
+        with log_path.open("w") as log:
+            popen = subprocess.Popen(args, env=env or self.env, start_new_session=True,
+                                     stdout=log, stderr=subprocess.STDOUT, text=True)
+        process = NodeProcess(node, popen, log_path)
+        self.processes.append(process)
+        return process
+
+    def other_domain_env(self) -> dict[str, str]:
+        """The environment with a domain id different from this module's (an isolated node)."""
+        return dict(self.env, ROS_DOMAIN_ID=str(free_domain_id({self.env["ROS_DOMAIN_ID"]})))
+
+    def stop_all(self) -> None:
+        for process in reversed(self.processes):
+            process.stop()
+
+
+class Probe(Node):
+    """The tests' window on the graph: records topics, calls services, sends action goals."""
+
+    def __init__(self, context, name: str = "integration_probe") -> None:
+        super().__init__(name, context=context)
+        self.spinner = SingleThreadedExecutor(context=context)
+        self.spinner.add_node(self)
+
+    def record(self, message_type, topic: str, qos: Any = 10,
+               transform: Callable[[Any], Any] | None = None) -> list:
+        """Subscribe to `topic`; returns the list every message (or transform(message)) is
+        appended to."""
+        received: list = []
+        self.create_subscription(
+            message_type, topic,
+            received.append if transform is None else lambda m: received.append(transform(m)),
+            qos)
+        return received
+
+    def next_message(self, message_type, topic: str, qos: Any = 10, timeout: float = 30.0):
+        """The next message on `topic` (subscribed only while waiting, for fast topics)."""
+        received: list = []
+        subscription = self.create_subscription(message_type, topic, received.append, qos)
+        try:
+            assert self.spin_until(lambda: bool(received), timeout), f"nothing on {topic}"
+        finally:
+            self.destroy_subscription(subscription)
+        return received[0]
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float = 30.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.spinner.spin_once(timeout_sec=0.05)
+            if condition():
+                return True
+        return False
+
+    def wait_for(self, future, timeout: float = 30.0):
+        assert self.spin_until(future.done, timeout), f"no answer within {timeout} s"
+        return future.result()
+
+    def call(self, client, request, timeout: float = 30.0):
+        assert client.wait_for_service(timeout_sec=30.0), f"{client.srv_name} not available"
+        return self.wait_for(client.call_async(request), timeout)
+
+    def send_goal(self, action_client, goal, feedback: list | None = None):
+        """Send an action goal; feedback messages (if a list is given) are appended to it."""
+        assert action_client.wait_for_server(timeout_sec=30.0), "action server not available"
+        callback = feedback.append if feedback is not None else None
+        return self.wait_for(action_client.send_goal_async(goal, feedback_callback=callback))
+
+    def execute(self, action_client, goal, feedback: list | None = None,
+                timeout: float = 60.0):
+        """Send a goal that must be accepted and wait for its result (the wrapper with status)."""
+        handle = self.send_goal(action_client, goal, feedback)
+        assert handle.accepted, "goal rejected"
+        return self.wait_for(handle.get_result_async(), timeout)
+
+    def close(self) -> None:
+        self.spinner.shutdown()
+        self.destroy_node()
+
+
+@pytest.fixture(scope="module")
+def ros_env() -> Iterator[dict[str, str]]:
+    """The environment of this module's nodes and probe: its own domain, localhost only."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("ROS_DOMAIN_ID", str(free_domain_id({os.environ.get("ROS_DOMAIN_ID", "")})))
+        patch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        yield dict(os.environ)
+
+
+@pytest.fixture(scope="module")
+def launch(ros_env, tmp_path_factory) -> Iterator[Launcher]:
+    launcher = Launcher(ros_env, tmp_path_factory.mktemp("node_logs"))
+    yield launcher
+    launcher.stop_all()
+
+
+@pytest.fixture(scope="module")
+def probe_on_domain() -> Iterator[Callable[[int], Probe]]:
+    """Makes probes on a given ROS domain (each in an rclpy context of its own); all are shut
+    down at the module's teardown."""
+    made: list[tuple[Any, Probe]] = []
+
+    def make(domain_id: int) -> Probe:
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=domain_id)
+        node = Probe(context)
+        made.append((context, node))
+        return node
+
+    yield make
+    for context, node in reversed(made):
+        node.close()
+        rclpy.shutdown(context=context)
+
+
+@pytest.fixture(scope="module")
+def graph_probe(ros_env, probe_on_domain) -> Probe:
+    """A probe on this module's domain."""
+    return probe_on_domain(int(ros_env["ROS_DOMAIN_ID"]))
