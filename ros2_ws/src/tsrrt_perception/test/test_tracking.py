@@ -122,6 +122,20 @@ def test_covered_object_is_occluded_with_its_last_pose_then_reacquired(classes, 
     assert state.status is TrackStatus.TRACKED and state.pose.x == 0.53
 
 
+@pytest.mark.parametrize("frame_interval, same_track", [(0.1, False), (5.0, True)])
+def test_push_between_sparse_frames_keeps_the_id(classes, camera_view, frame_interval,
+                                                 same_track):
+    """At 10 frames per wall second a fast simulation may push an object 6 cm between two frames
+    seconds of simulated time apart: it is the same object. Frames 0.1 s apart bound it to 5 cm."""
+    eraser = classes["eraser"]
+    tracker = ObjectTracker(classes)
+    tracker.update([detection(eraser, 0.45, 0.0)], 0.0, empty_frame(camera_view))
+    tracker.update([detection(eraser, 0.51, 0.0)], frame_interval, empty_frame(camera_view))
+    estimates = by_id(tracker)
+    assert (estimates["eraser_1"].status is TrackStatus.TRACKED) == same_track
+    assert ("eraser_2" in estimates) != same_track
+
+
 def test_unseen_object_is_stale_then_lost(classes, camera_view):
     params = TrackerParams(lost_timeout=1.0)
     tracker = ObjectTracker(classes, params)

@@ -49,6 +49,10 @@ class ExpectedObject:
 class TrackerParams:
     gate_tracked: float = 0.05          # m an object seen last frame may move by the next
     gate_unseen: float = 0.15           # m an occluded or stale object may have moved meanwhile
+    # s (frame stamps) within which gate_tracked applies; frames further apart (a simulation
+    # running many times faster than real time, 10 frames per wall second) may miss a whole
+    # 5 cm push, so a tracked object is then gated like an unseen one.
+    tracked_gate_interval: float = 0.5
     angle_cost: float = 0.01            # m of assignment cost per radian of heading mismatch
     occlusion_margin: float = 0.01      # m above an object's top that counts as covering it
     occlusion_min_fraction: float = 0.02  # share of the footprint that must be covered
@@ -176,8 +180,9 @@ class ObjectTracker:
         cost = np.full((len(tracks), len(detections)), _NO_MATCH)
         for i, track in enumerate(tracks):
             predicted = track.predicted_position(stamp)
-            gate = self.params.gate_tracked if track.status is TrackStatus.TRACKED \
-                else self.params.gate_unseen
+            recently_seen = (track.status is TrackStatus.TRACKED and track.last_seen is not None
+                             and stamp - track.last_seen <= self.params.tracked_gate_interval)
+            gate = self.params.gate_tracked if recently_seen else self.params.gate_unseen
             for j, detection in enumerate(detections):
                 if detection.object_class != track.cls.name:
                     continue
