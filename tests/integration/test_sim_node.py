@@ -186,7 +186,8 @@ def test_bad_goal_leaves_the_running_one_alone(probe):
 
 
 def test_cancel_is_accepted(probe):
-    handle = probe.send_goal(goal_to([shifted(0.5)], [20.0]))
+    # Long in sim time, so that at full sim speed the goal is still running when cancelled.
+    handle = probe.send_goal(goal_to([shifted(0.5)], [600.0]))
     assert handle.accepted
     cancel = probe.wait_for(handle.cancel_goal_async())
     assert len(cancel.goals_canceling) == 1

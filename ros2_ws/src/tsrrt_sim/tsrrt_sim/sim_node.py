@@ -360,13 +360,19 @@ class SimNode(Node):
             goal_handle.abort()
             result.error_code, result.error_string = int(error.code), str(error)
             return result
+        published = False
         while not execution.done:
             if goal_handle.is_cancel_requested:
                 self._call_in_physics(lambda: self.world.controller.cancel(execution))
                 continue
             if execution.desired is not None:
                 goal_handle.publish_feedback(self._feedback(execution))
+                published = True
             time.sleep(self.feedback_period)
+        if not published and execution.desired is not None:
+            # At full sim speed a short trajectory can end before the first feedback period;
+            # every executed goal still reports at least its final state.
+            goal_handle.publish_feedback(self._feedback(execution))
         result.error_code = int(execution.error_code)
         result.error_string = execution.error_string
         result.tool_rms_error = execution.tool_rms_error
