@@ -168,7 +168,8 @@ def test_bad_goals_are_aborted_with_a_code_and_reason(probe, case, goal, code, r
 
 
 def test_new_goal_preempts_the_running_one(probe):
-    first = probe.send_goal(goal_to([shifted(0.5)], [4.0]))
+    # Long in sim time, so that at full sim speed it is still running when the second arrives.
+    first = probe.send_goal(goal_to([shifted(0.5)], [600.0]))
     first_result = first.get_result_async()
     second = probe.execute(goal_to([READY_POSTURE], [2.0])).result
     assert probe.wait_for(first_result).result.error_code == Result.PREEMPTED
