@@ -2,7 +2,10 @@
 
 Run through scripts/demo.sh (which sets the machine up and sources scripts/env.sh):
 
-    ./scripts/demo.sh --scenario clean --out out/demo
+    ./scripts/demo.sh --scenario clean --out out/demo [--record [DIR]]
+
+`--record` also writes a rosbag2 of the run (default OUT/bag; scripts/record_bag.py's topics:
+camera, perceived and true object states, joint states, plan, markers, clock).
 
 The planner acts only on perception; this client also reads the simulator's ground truth
 (/sim/object_states), but only to evaluate the result (final_cost_true in the report).
@@ -24,6 +27,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+import yaml
 from rclpy.action import ActionClient
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -121,7 +125,31 @@ def start_graph(scenario: str, seed: int, out: Path) -> subprocess.Popen:
         start_new_session=True)
 
 
+def start_recorder(bag: Path, log_dir: Path) -> subprocess.Popen:
+    """scripts/record_bag.py, started beside the graph: it subscribes to each topic as its node
+    comes up. zstd-compressed MCAP, because camera frames are 0.9 MB each, 10 per second."""
+    log_dir.mkdir(parents=True, exist_ok=True)
+    with (log_dir / "record_bag.log").open("w") as log:
+        return subprocess.Popen(
+            [sys.executable, str(ROOT / "scripts" / "record_bag.py"), "-o", str(bag),
+             "--compression", "zstd"],
+            stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def bag_summary(bag: Path) -> str:
+    """Messages per topic, from the metadata.yaml the recorder writes when it closes the bag."""
+    metadata = bag / "metadata.yaml"
+    if not metadata.is_file():
+        return f"no bag in {bag}: the recorder did not close it (see logs/record_bag.log)"
+    info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+    counts = ", ".join(f"{t['topic_metadata']['name']} {t['message_count']}"
+                       for t in info["topics_with_message_count"])
+    return f"rosbag2 of the run in {bag} ({info['message_count']} messages: {counts})"
+
+
 def stop_graph(process: subprocess.Popen) -> None:
+    """SIGTERM to the process group (bringup.sh stops its nodes, the recorder closes its bag),
+    SIGKILL after 20 s."""
     if process.poll() is None:
         os.killpg(process.pid, signal.SIGTERM)
         try:
@@ -134,11 +162,16 @@ def stop_graph(process: subprocess.Popen) -> None:
 def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario, args.seed if args.seed >= 0 else None)
     out = Path(args.out)
+    bag = None if args.record is None else Path(args.record or out / "bag")
+    if bag is not None and bag.exists():
+        raise RuntimeError(f"{bag} exists and a bag is never overwritten; move it away or give "
+                           "--record DIR")
     out.mkdir(parents=True, exist_ok=True)
     objective = build_objective(scenario)
     camera = OverheadCamera()
     began = time.monotonic()
     graph = start_graph(args.scenario, args.seed, out)
+    recorder = None if bag is None else start_recorder(bag, out / "logs")
     rclpy.init()
     client = DemoClient()
     spinner = threading.Thread(target=rclpy.spin, args=(client,), daemon=True)
@@ -176,6 +209,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         client.destroy_node()
         rclpy.try_shutdown()
+        if recorder is not None:
+            stop_graph(recorder)
+            print(f"[demo] {bag_summary(bag)}")
         stop_graph(graph)
 
 
@@ -264,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget-s", type=float, default=0.0, help="planning time per plan")
     parser.add_argument("--timeout", type=float, default=1800.0, help="task timeout, s")
     parser.add_argument("--startup-timeout", type=float, default=90.0)
+    parser.add_argument("--record", nargs="?", const="", default=None, metavar="DIR",
+                        help="write a rosbag2 of the run to DIR (default OUT/bag)")
     args = parser.parse_args(argv)
     if args.scenario and Path(args.scenario).is_file():
         args.scenario = str(Path(args.scenario).resolve())

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Demo: sets up the workspace, brings the node graph up, runs the task end to end, writes a report.
-# Usage: scripts/demo.sh [--scenario NAME|PATH] [--out DIR] [extra args for scripts/demo.py]
+# Usage: scripts/demo.sh [--scenario NAME|PATH] [--out DIR] [--record [DIR]] [demo.py args]
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 

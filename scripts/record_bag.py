@@ -4,7 +4,7 @@
 `ros2 bag record` is not on PyPI; this is its pip-only stand-in. After `source scripts/env.sh`:
 
     python scripts/record_bag.py [TOPIC ...] [--all] [-o DIR] [--storage mcap|sqlite3]
-                                 [--duration S]
+                                 [--compression none|zstd] [--duration S]
 
 Without TOPICs it records the tsrrt run: camera image and intrinsics, perceived and true object
 states, joint states, plan and markers, /clock. Messages are stored as the CDR bytes DDS
@@ -15,7 +15,9 @@ appears, with a QoS every publisher can serve, so topics of nodes started later 
 The bag is rosbag2 format version 9 (Jazzy), MCAP by default (Jazzy's default storage). Every
 topic carries its message definition and RIHS01 type hash, custom tsrrt_interfaces types
 included (read from their installed .msg files), so `ros2 bag info/play`, Foxglove and rosbags
-can decode it. SIGINT or SIGTERM (or --duration) ends the recording and closes the bag properly.
+can decode it. `--compression zstd` compresses the MCAP chunks (camera frames shrink several
+fold; readers decompress transparently). SIGINT or SIGTERM (or --duration) ends the recording
+and closes the bag properly.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from rosbags.interfaces import (
     QosReliability,
     QosTime,
 )
-from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -208,8 +210,12 @@ class BagRecorder(Node):
 
 
 def record(output: Path, topics: tuple[str, ...] | None, storage: StoragePlugin,
-           duration: float | None) -> None:
+           duration: float | None, compress: bool = False) -> None:
     """Record until SIGINT/SIGTERM or `duration` seconds; the bag is closed in every case.
+
+    `compress`: zstd inside the MCAP chunks (CompressionMode.STORAGE, what `ros2 bag record
+    --storage-preset-profile zstd_fast` does), not rosbag2's file or message compression, so the
+    metadata stays plain and every MCAP reader decodes it.
 
     The signals only set a flag: rclpy's own handlers would shut the context down under the
     running executor, which then fails instead of ending the loop.
@@ -219,6 +225,8 @@ def record(output: Path, topics: tuple[str, ...] | None, storage: StoragePlugin,
         signal.signal(signum, lambda *_: stop.set())
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     writer = Writer(output, version=Writer.VERSION_LATEST, storage_plugin=storage)
+    if compress:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     writer.open()
     recorder = BagRecorder(writer, topics)
     executor = SingleThreadedExecutor()
@@ -230,7 +238,8 @@ def record(output: Path, topics: tuple[str, ...] | None, storage: StoragePlugin,
     finally:
         executor.shutdown()
         writer.close()
-        print(f"bag {output} ({storage.name.lower()}), messages per topic:\n"
+        print(f"bag {output} ({storage.name.lower()}{', zstd' if compress else ''}), "
+              f"messages per topic:\n"
               f"{recorder.summary()}", file=sys.stderr, flush=True)
         recorder.destroy_node()
         rclpy.try_shutdown()
@@ -257,11 +266,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="bag directory to create (default ./tsrrt_<date-time>)")
     parser.add_argument("-s", "--storage", choices=["mcap", "sqlite3"], default="mcap",
                         help="storage format (default mcap, as ros2 bag in Jazzy)")
+    parser.add_argument("--compression", choices=["none", "zstd"], default="none",
+                        help="zstd: compress the MCAP chunks (mcap storage only; default none, "
+                             "as ros2 bag)")
     parser.add_argument("--duration", type=_seconds, metavar="S",
                         help="stop after S wall-clock seconds (default: until Ctrl-C/SIGTERM)")
     args = parser.parse_args(argv)
     if args.all and args.topics:
         parser.error("give TOPICs or --all, not both")
+    if args.compression == "zstd" and args.storage != "mcap":
+        parser.error("--compression zstd compresses MCAP chunks: it needs --storage mcap")
     topics = None if args.all else tuple(
         t if t.startswith("/") else "/" + t for t in args.topics or DEFAULT_TOPICS)
     output = args.output or _default_output()
@@ -269,7 +283,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"record_bag.py: error: {output} exists; the recorder never overwrites a bag",
               file=sys.stderr)
         return 1
-    record(output, topics, StoragePlugin[args.storage.upper()], args.duration)
+    record(output, topics, StoragePlugin[args.storage.upper()], args.duration,
+           compress=args.compression == "zstd")
     return 0
 
 

@@ -2,11 +2,13 @@
 
 The simulator runs on the module's own ROS domain (conftest.py: random, localhost discovery
 only); the recorder is stopped the two ways a user or `demo.sh` stops it (SIGINT, SIGTERM) and
-must close the bag both times. Every process started here is killed at teardown.
+must close the bag both times, and is started and stopped once more the way `demo.sh --record`
+does it. Every process started here is killed at teardown.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import signal
@@ -39,6 +41,15 @@ SCENARIO = "tset3"
 SIM_TOPICS = ("/camera/image_raw", "/camera/camera_info", "/joint_states", "/sim/object_states",
               "/clock")
 RECORD_SECONDS = 3.0
+# What the demo's bag holds when only the simulator runs (record_bag.py's other default topics
+# have no publisher here).
+SIM_TYPES = {
+    "/camera/image_raw": "sensor_msgs/msg/Image",
+    "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/sim/object_states": "tsrrt_interfaces/msg/ObjectStateArray",
+    "/clock": "rosgraph_msgs/msg/Clock",
+}
 
 
 def _stop(process: subprocess.Popen, sig: int = signal.SIGINT) -> int:
@@ -58,6 +69,16 @@ def sim(launch):
     return launch.start("tsrrt_sim", "sim_node", f"scenario:={SCENARIO}")
 
 
+def wait_until_recording(process: subprocess.Popen, log: Path) -> None:
+    """Until the recorder has subscribed to every sim topic, then RECORD_SECONDS more."""
+    deadline = time.monotonic() + 90.0
+    while not all(f"recording {topic} " in log.read_text() for topic in SIM_TOPICS):
+        assert process.poll() is None, log.read_text()
+        assert time.monotonic() < deadline, f"recorder never subscribed:\n{log.read_text()}"
+        time.sleep(0.2)
+    time.sleep(RECORD_SECONDS)
+
+
 def record(env: dict[str, str], bag: Path, log: Path, stop_signal: int) -> tuple[int, str]:
     """Record the default topics: once subscribed to every sim topic, RECORD_SECONDS more."""
     with log.open("w") as stderr:
@@ -65,12 +86,7 @@ def record(env: dict[str, str], bag: Path, log: Path, stop_signal: int) -> tuple
                                    start_new_session=True, stdout=subprocess.DEVNULL,
                                    stderr=stderr)
     try:
-        deadline = time.monotonic() + 90.0
-        while not all(f"recording {topic} " in log.read_text() for topic in SIM_TOPICS):
-            assert process.poll() is None, log.read_text()
-            assert time.monotonic() < deadline, f"recorder never subscribed:\n{log.read_text()}"
-            time.sleep(0.2)
-        time.sleep(RECORD_SECONDS)
+        wait_until_recording(process, log)
         returncode = _stop(process, stop_signal)
     finally:
         _stop(process, signal.SIGKILL)
@@ -158,3 +174,47 @@ def test_recorder_refuses_to_overwrite_a_bag(tmp_path, ros_env):
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert f"{tmp_path} exists" in result.stderr
+
+
+def load_demo_script():
+    """scripts/demo.py as a module (it is a script, not part of a package)."""
+    spec = importlib.util.spec_from_file_location("tsrrt_demo_script", ROOT / "scripts/demo.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_demo_record_writes_a_compressed_bag_rosbags_reads_back(sim, tmp_path):
+    """`demo.sh --record` starts the recorder beside the graph and stops it with the graph's
+    SIGTERM; every message in the bag decodes as its topic's type, the per-topic counts in the
+    metadata are the messages read back, and zstd makes the bag smaller than its messages."""
+    demo = load_demo_script()
+    out = tmp_path / "out"
+    recorder = demo.start_recorder(out / "bag", out / "logs")
+    log = out / "logs" / "record_bag.log"
+    try:
+        wait_until_recording(recorder, log)
+    finally:
+        demo.stop_graph(recorder)
+    assert recorder.returncode == 0, log.read_text()
+    assert "Traceback" not in log.read_text(), log.read_text()
+
+    read: dict[str, int] = {}
+    payload_bytes = 0
+    with AnyReader([out / "bag"]) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == SIM_TYPES
+        listed = {c.topic: c.msgcount for c in reader.connections}
+        truth_stamps = []
+        for connection, _, data in reader.messages():
+            message = reader.deserialize(data, connection.msgtype)     # raises on bad CDR
+            read[connection.topic] = read.get(connection.topic, 0) + 1
+            payload_bytes += len(data)
+            if connection.topic == "/sim/object_states":
+                truth_stamps.append(message.header.stamp.sec + message.header.stamp.nanosec * 1e-9)
+    assert read == listed
+    assert all(read[topic] > 0 for topic in SIM_TYPES), read
+    assert truth_stamps == sorted(truth_stamps) and truth_stamps[-1] > truth_stamps[0]
+    bag_bytes = sum(f.stat().st_size for f in (out / "bag").iterdir())
+    assert bag_bytes < payload_bytes / 2, (bag_bytes, payload_bytes)
+    summary = demo.bag_summary(out / "bag")
+    assert f"/camera/image_raw {read['/camera/image_raw']}" in summary
