@@ -19,6 +19,7 @@ from geometry_msgs.msg import Point
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -46,6 +47,7 @@ from tsrrt_perception.tracking import (
 
 FRAME_ID = "world"
 PAIRING_BUFFER = 10              # unpaired images kept per stream while waiting for the other
+SKIP_LOG_PERIOD_S = 5.0          # the same reason for skipping frames is logged this often
 STATUS_COLORS = {TrackStatus.TRACKED: (0.1, 0.9, 0.1), TrackStatus.OCCLUDED: (0.95, 0.8, 0.1),
                  TrackStatus.STALE: (0.95, 0.5, 0.1), TrackStatus.LOST: (0.9, 0.1, 0.1)}
 
@@ -90,6 +92,7 @@ class PerceptionNode(Node):
         self.lock = threading.Lock()
         self.camera: CameraView | None = None
         self.camera_problem: str | None = "no CameraInfo received yet"
+        self._skip_logged: dict[str, float] = {}   # reason -> monotonic time it was logged
         self.colour_by_stamp: dict[int, Image] = {}
         self.depth_by_stamp: dict[int, Image] = {}
         self.settle_requests: list[_SettleRequest] = []
@@ -167,6 +170,7 @@ class PerceptionNode(Node):
                                                  self.camera_position, self.camera_orientation)
         except TsrrtError as error:
             self.camera, self.camera_problem = None, str(error)
+            self._skip(f"unusable CameraInfo: {error}")
             return
         if self.camera is None or not (np.array_equal(camera.intrinsics, self.camera.intrinsics)
                                        and (camera.width, camera.height)
@@ -196,7 +200,15 @@ class PerceptionNode(Node):
             del buffer[min(buffer)]
 
     def _skip(self, reason: str) -> None:
-        self.get_logger().warning(f"skipping frame: {reason}", throttle_duration_sec=5.0)
+        """Log why a frame is skipped: each distinct reason at once, then at most every
+        SKIP_LOG_PERIOD_S (a logger throttle would hide a new reason behind an old one)."""
+        now = time.monotonic()
+        if now - self._skip_logged.get(reason, -SKIP_LOG_PERIOD_S) < SKIP_LOG_PERIOD_S:
+            return
+        self._skip_logged = {r: t for r, t in self._skip_logged.items()
+                             if now - t < SKIP_LOG_PERIOD_S}
+        self._skip_logged[reason] = now
+        self.get_logger().warning(f"skipping frame: {reason}")
 
     def _process(self, colour_msg: Image, depth_msg: Image) -> None:
         if self.camera is None:
@@ -331,6 +343,7 @@ class PerceptionNode(Node):
 def main(args: list[str] | None = None) -> None:
     rclpy.init(args=args)
     node = None
+    refused = False
     try:
         node = PerceptionNode()
         executor = MultiThreadedExecutor(num_threads=3)
@@ -338,10 +351,15 @@ def main(args: list[str] | None = None) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (TsrrtError, ParameterException) as error:   # a bad file or parameter: refuse
+        rclpy.logging.get_logger("perception_node").fatal(f"cannot start: {error}")
+        refused = True
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if refused:
+        raise SystemExit(1)
 
 
 if __name__ == "__main__":
