@@ -33,6 +33,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -446,6 +447,7 @@ class SimNode(Node):
 def main(args: list[str] | None = None) -> None:
     rclpy.init(args=args)
     node = None
+    refused = False
     executor = MultiThreadedExecutor(num_threads=6)
     try:
         node = SimNode()
@@ -453,11 +455,16 @@ def main(args: list[str] | None = None) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (TsrrtError, ParameterException) as error:   # a bad file or parameter: refuse
+        rclpy.logging.get_logger("sim_node").fatal(f"cannot start: {error}")
+        refused = True
     finally:
         executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if refused:
+        raise SystemExit(1)
 
 
 if __name__ == "__main__":
