@@ -28,9 +28,15 @@ from typing import Any
 import numpy as np
 import rclpy
 from geometry_msgs.msg import Point, Vector3
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -66,9 +72,12 @@ from tsrrt_planner.model_learning import (
     PaperStoppingRule,
     StoppingRule,
 )
+from tsrrt_planner.objectives import build_objective
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.task_space_rrt import MODES, PlanResult
 
+# String parameters and their allowed values (numbers have ranges in their descriptors).
+CHOICES = {"planner": MODES, "stopping_rule": ("confidence", "variance")}
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -151,9 +160,12 @@ class RosTaskEnvironment:
 class PlannerNode(Node):
     def __init__(self) -> None:
         super().__init__("planner_node")
+        # Registered first, so that a bad value is refused at declaration too.
+        self.add_on_set_parameters_callback(self._check_choices)
         self._declare_parameters()
         self.scenario: Scenario = load_scenario(self.get_parameter("scenario").value,
                                                 self.get_parameter("seed").value)
+        build_objective(self.scenario)   # a contradictory objective stops the node here
         path = self.get_parameter("models_path").value
         self.models_path = Path(path) if path else default_models_path(self.scenario.name)
         self.store, self.store_problem = self._load_models()
@@ -218,6 +230,32 @@ class PlannerNode(Node):
         declare("observe_timeout_s", 15.0, _float(0.5, 600.0,
                                                   "wait for a settled observation, s"))
 
+    @staticmethod
+    def _check_choices(parameters: list) -> SetParametersResult:
+        for parameter in parameters:
+            choices = CHOICES.get(parameter.name)
+            if choices is not None and parameter.value not in choices:
+                return SetParametersResult(successful=False, reason=(
+                    f"{parameter.name} must be one of {list(choices)}, got {parameter.value!r}"))
+        return SetParametersResult(successful=True)
+
+    def _check_goal_value(self, field: str, value: float, parameter: str) -> None:
+        """A goal field that overrides a parameter (0: use the parameter) must lie within the
+        parameter's declared range; raises GoalFailed(INVALID_GOAL) naming both."""
+        descriptor = self.describe_parameter(parameter)
+        bounds = (descriptor.floating_point_range or descriptor.integer_range)[0]
+        if value != 0 and not bounds.from_value <= value <= bounds.to_value:   # NaN too
+            raise GoalFailed("INVALID_GOAL", f"{field} must be 0 (the {parameter} parameter) "
+                             f"or within [{bounds.from_value:g}, {bounds.to_value:g}], got "
+                             f"{value!r}")
+
+    def _require_readable_models(self) -> None:
+        """Learning must not start when its result could only be saved over a file that
+        could not be read (that file is kept as it is)."""
+        if self.store_problem is not None:
+            raise GoalFailed("LEARNING_FAILED", "the model file could not be read and is not "
+                             f"overwritten; move it away to learn anew: {self.store_problem}")
+
     def _param(self, name: str) -> Any:
         return self.get_parameter(name).value
 
@@ -240,6 +278,7 @@ class PlannerNode(Node):
         self._publish_models()
 
     def _stopping_rule(self, name: str, max_trials: int) -> StoppingRule:
+        self._check_goal_value("max_trials_per_primitive", max_trials, "max_trials")
         name = name or self._param("stopping_rule")
         max_trials = max_trials or self._param("max_trials")
         min_trials = min(self._param("min_trials"), max_trials)
@@ -384,6 +423,7 @@ class PlannerNode(Node):
                 raise GoalFailed("UNKNOWN_OBJECT", f"unknown objects {unknown}; known: "
                                  f"{known}")
             rule = self._stopping_rule(goal.stopping_rule, goal.max_trials_per_primitive)
+            self._require_readable_models()
             result.trials = self._learn(
                 ids, rule, lambda: goal_handle.is_cancel_requested,
                 lambda progress, total: goal_handle.publish_feedback(LearnModels.Feedback(
@@ -439,9 +479,10 @@ class PlannerNode(Node):
         if planner not in MODES:
             raise GoalFailed("INVALID_GOAL",
                              f"unknown planner {planner!r}; known: {list(MODES)}")
-        for name, value in (("budget", budget_s), ("time budget", time_budget_s)):
-            if not math.isfinite(value) or value < 0:
-                raise GoalFailed("INVALID_GOAL", f"{name} must be >= 0 s")
+        for field, value, parameter in (("budget_s", budget_s, "planning_budget_s"),
+                                        ("max_pushes", max_pushes, "max_pushes"),
+                                        ("time_budget_s", time_budget_s, "time_budget_s")):
+            self._check_goal_value(field, value, parameter)
         return TaskSettings(
             planner=planner, planning_budget_s=budget_s or self._param("planning_budget_s"),
             max_pushes=max_pushes or self._param("max_pushes"),
@@ -452,6 +493,8 @@ class PlannerNode(Node):
     def _check_models(self, reason: str) -> None:
         """Every object needs models; a primitive without one (never tried: it was blocked
         while learning) is left out of planning, with a warning."""
+        if self.store_problem is not None:
+            raise GoalFailed(reason, f"the model file could not be read: {self.store_problem}")
         objects = [(o.id, o.object_class, o.shape) for o in self.scenario.objects]
         try:
             self.store.check_covers(objects, every_primitive=False)
@@ -508,6 +551,7 @@ class PlannerNode(Node):
                                       goal.time_budget_s)
             cancelled = lambda: goal_handle.is_cancel_requested  # noqa: E731
             ids = [o.id for o in self.scenario.objects]
+            self._require_readable_models()
             result.learning_trials = self._learn(
                 ids, self._stopping_rule("", 0), cancelled,
                 lambda progress, total: goal_handle.publish_feedback(RunTask.Feedback(
@@ -603,6 +647,7 @@ def _object_state(spec, pose: Pose2D) -> ObjectState:
 def main(args: list[str] | None = None) -> None:
     rclpy.init(args=args)
     node = None
+    refused = False
     try:
         node = PlannerNode()
         executor = MultiThreadedExecutor(num_threads=4)
@@ -610,10 +655,15 @@ def main(args: list[str] | None = None) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (TsrrtError, ParameterException) as error:   # a bad file or parameter: refuse
+        rclpy.logging.get_logger("planner_node").fatal(f"cannot start: {error}")
+        refused = True
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if refused:
+        raise SystemExit(1)
 
 
 if __name__ == "__main__":
