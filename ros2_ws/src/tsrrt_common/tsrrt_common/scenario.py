@@ -405,7 +405,13 @@ def load_scenario(name_or_path: str | Path, seed: int | None = None) -> Scenario
         if not path.is_file():
             raise ScenarioError(source, "(file)", "no such file and not a shipped scenario; "
                                 f"shipped: {shipped_scenarios()}")
-        text = path.read_text()
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as error:
+            raise ScenarioError(source, "(file)", f"cannot read ({error.strerror})") from None
+        except UnicodeDecodeError as error:
+            raise ScenarioError(source, "(file)", f"not UTF-8 text ({error.reason} at byte "
+                                f"{error.start})") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as error:

@@ -323,9 +323,12 @@ class ModelStore:
         """Read a model file; anything malformed raises ModelFileError naming file and field."""
         path = Path(path)
         try:
-            text = path.read_text()
+            text = path.read_text(encoding="utf-8")
         except OSError as error:
             raise ModelFileError(f"{path}: cannot read ({error.strerror})") from None
+        except UnicodeDecodeError as error:
+            raise ModelFileError(f"{path}: not UTF-8 text ({error.reason} at byte "
+                                 f"{error.start})") from None
         try:
             document = yaml.safe_load(text)
         except yaml.YAMLError as error:
