@@ -33,8 +33,6 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
@@ -44,6 +42,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, wrap_angle
 from tsrrt_common.robot_model import ARM_JOINT_NAMES
+from tsrrt_common.ros_node import run_node
 from tsrrt_common.scenario import load_scenario
 from tsrrt_interfaces.action import FollowJointTrajectory
 from tsrrt_interfaces.msg import ObjectState, ObjectStateArray
@@ -445,26 +444,7 @@ class SimNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    refused = False
-    executor = MultiThreadedExecutor(num_threads=6)
-    try:
-        node = SimNode()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (TsrrtError, ParameterException) as error:   # a bad file or parameter: refuse
-        rclpy.logging.get_logger("sim_node").fatal(f"cannot start: {error}")
-        refused = True
-    finally:
-        executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if refused:
-        raise SystemExit(1)
+    run_node(SimNode, "sim_node", threads=6, args=args)
 
 
 if __name__ == "__main__":

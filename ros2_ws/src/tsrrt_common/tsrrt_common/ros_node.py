@@ -1,0 +1,81 @@
+"""What every tsrrt node shares with rclpy: a race-free action client and the node's main loop.
+
+The one module of tsrrt_common that imports rclpy; the ROS-free cores never import it.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import rclpy
+import rclpy.action
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+
+from tsrrt_common.errors import TsrrtError
+
+
+class ActionClient(rclpy.action.ActionClient):
+    """rclpy's ActionClient without its lost-response race (ros2/rclpy#1123).
+
+    In rclpy 7.1 (Jazzy) `send_goal_async` sends the request before it registers the request's
+    sequence number, so an executor thread that takes the response in between drops it ("Ignoring
+    unexpected goal response") and the future never completes; on a loaded machine this stalls a
+    push. Upstream fixed it with a lock (ros2/rclpy#1519) after the wheels pinned here were built;
+    this is the same lock: requests are sent and registered, and responses taken, under it.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._request_lock = threading.RLock()
+
+    def send_goal_async(self, *args: Any, **kwargs: Any) -> Any:
+        with self._request_lock:
+            return super().send_goal_async(*args, **kwargs)
+
+    def _cancel_goal_async(self, *args: Any, **kwargs: Any) -> Any:
+        with self._request_lock:
+            return super()._cancel_goal_async(*args, **kwargs)
+
+    def _get_result_async(self, *args: Any, **kwargs: Any) -> Any:
+        with self._request_lock:
+            return super()._get_result_async(*args, **kwargs)
+
+    def take_data(self) -> Any:
+        with self._request_lock:
+            return super().take_data()
+
+
+def run_node(make_node: Callable[[], Node], name: str, threads: int,
+             args: list[str] | None = None) -> None:
+    """Spin a node until SIGINT/SIGTERM; a bad file or parameter refuses to start (exit 1).
+
+    A signal shuts the context down while executor threads may still be waiting; their
+    "context is not valid" error is part of an orderly shutdown, not a crash.
+    """
+    rclpy.init(args=args)
+    node = None
+    refused = False
+    executor = MultiThreadedExecutor(num_threads=threads)
+    try:
+        node = make_node()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (TsrrtError, ParameterException) as error:
+        rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")
+        refused = True
+    except rclpy.exceptions.RCLError:
+        if rclpy.ok():
+            raise
+    finally:
+        executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if refused:
+        raise SystemExit(1)
