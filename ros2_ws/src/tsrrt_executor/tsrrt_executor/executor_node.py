@@ -36,13 +36,11 @@ import threading
 import time
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Duration
+from builtin_interfaces.msg import Time as TimeMessage
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -50,6 +48,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.robot_model import ARM_JOINT_NAMES
+from tsrrt_common.ros_node import ActionClient, run_node
 from tsrrt_executor.errors import IKError, PrimitiveError, TrajectoryError, UnreachableError
 from tsrrt_executor.inverse_kinematics import PusherIK
 from tsrrt_executor.primitive_plan import (
@@ -80,6 +79,11 @@ PHASE_CODES = {PHASE_APPROACH: Feedback.PHASE_APPROACH, PHASE_PUSH: Feedback.PHA
 CONTROLLER = "/arm_controller/follow_joint_trajectory"
 UNKNOWN_ID_RECHECKS = 2     # further /perception/objects messages looked at for a missing id
 
+
+
+def _time_message(seconds: float) -> TimeMessage:
+    nanoseconds = round(seconds * 1e9)
+    return TimeMessage(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 class GoalFailed(Exception):
     """Ends a goal early with an ExecutePrimitive error code and message."""
@@ -301,18 +305,22 @@ class ExecutorNode(Node):
         deadline = time.monotonic() + self._value("settle_timeout")
         problem = "no settled observation"
         while (remaining := deadline - time.monotonic()) > 0.0:
+            # Never ask for less than a few frames' worth: a sliver of time cannot succeed.
+            wait_s = max(remaining, 0.5)
             future = self.settled_client.call_async(GetSettledObjects.Request(
-                timeout_s=remaining))
-            if not self._wait(future, remaining + timeout, goal_handle):
+                timeout_s=wait_s, not_before=_time_message(not_before)))
+            if not self._wait(future, wait_s + timeout, goal_handle):
                 raise GoalFailed(Result.OBJECT_LOST, "perception did not answer the request "
                                                      "for a settled observation")
             response = future.result()
             if not response.success:
-                raise GoalFailed(Result.OBJECT_LOST, f"perception: {response.message}")
+                problem = f"perception: {response.message}"
+                continue
             states = self._usable(list(response.objects.objects))
             state = states.get(object_id)
             if state is None:
-                problem = f"{object_id!r} is lost or missing in the settled observation"
+                problem = (f"{object_id!r} is lost or missing in the settled observation (hidden,"
+                           " or off the table)")
             else:
                 seen = state.last_seen.sec + state.last_seen.nanosec * 1e-9
                 if seen >= not_before:
@@ -519,25 +527,7 @@ class ExecutorNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    refused = False
-    try:
-        node = ExecutorNode()
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ParameterException as error:   # a parameter out of its range: refuse to start
-        rclpy.logging.get_logger("executor_node").fatal(f"cannot start: {error}")
-        refused = True
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if refused:
-        raise SystemExit(1)
+    run_node(ExecutorNode, "executor_node", threads=4, args=args)
 
 
 if __name__ == "__main__":

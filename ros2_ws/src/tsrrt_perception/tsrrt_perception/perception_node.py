@@ -13,14 +13,11 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
 from geometry_msgs.msg import Point
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.time import Time
@@ -31,6 +28,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import footprint_polygon
 from tsrrt_common.object_classes import load_class_table
+from tsrrt_common.ros_node import run_node
 from tsrrt_common.scenario import load_scenario
 from tsrrt_interfaces.msg import ObjectState, ObjectStateArray
 from tsrrt_interfaces.srv import GetSettledObjects
@@ -63,7 +61,7 @@ def _float_range(low: float, high: float, text: str) -> ParameterDescriptor:
 
 @dataclass
 class _SettleRequest:
-    requested_at: float          # node time (s) of the request; only later frames count
+    not_before: float            # sim time (s): only frames stamped at or after it count
     max_speed: float | None
     done: threading.Event
     result: list[ObjectEstimate] | None = None
@@ -96,6 +94,8 @@ class PerceptionNode(Node):
         self.colour_by_stamp: dict[int, Image] = {}
         self.depth_by_stamp: dict[int, Image] = {}
         self.settle_requests: list[_SettleRequest] = []
+        # (stamp, estimates) of the latest frame that was settled at the default speeds.
+        self.latest_settled: tuple[float, list[ObjectEstimate]] | None = None
         self.last_publish = 0.0          # monotonic (wall) time of the last publication
         self.last_frame_arrival: float | None = None   # monotonic time of the last frame
 
@@ -246,8 +246,10 @@ class PerceptionNode(Node):
         with self.lock:
             self.tracker.update(result.detections, stamp, result.height_image)
             self.last_frame_arrival = time.monotonic()
+            self.latest_settled = ((stamp, self.tracker.estimates())
+                                   if self.tracker.settled() else None)
             for request in self.settle_requests:
-                if request.result is None and stamp > request.requested_at \
+                if request.result is None and stamp >= request.not_before \
                         and self.tracker.settled(request.max_speed):
                     request.result = self.tracker.estimates()
                     request.done.set()
@@ -259,15 +261,24 @@ class PerceptionNode(Node):
 
     def _on_get_settled(self, request: GetSettledObjects.Request,
                         response: GetSettledObjects.Response) -> GetSettledObjects.Response:
-        """Wait (wall clock, up to timeout_s) for the next settled frame after the request."""
-        if not (0.0 < request.timeout_s <= 600.0) or request.max_speed < 0.0:
+        """Wait (wall clock, up to timeout_s) for a settled frame stamped late enough."""
+        if not (0.0 < request.timeout_s <= 600.0) or not request.max_speed >= 0.0:
             response.success = False
             response.message = (f"timeout_s must be in (0, 600] and max_speed >= 0; got "
                                 f"{request.timeout_s}, {request.max_speed}")
             return response
-        waiter = _SettleRequest(self.get_clock().now().nanoseconds * 1e-9,
-                                request.max_speed or None, threading.Event())
+        not_before = Time.from_msg(request.not_before).nanoseconds * 1e-9
+        if not_before == 0.0:
+            # Strictly after the request: a frame stamped now may have been taken before it.
+            not_before = self.get_clock().now().nanoseconds * 1e-9 + 1e-9
+        waiter = _SettleRequest(not_before, request.max_speed or None, threading.Event())
         with self.lock:
+            if not request.max_speed and self.latest_settled is not None \
+                    and self.latest_settled[0] >= not_before:
+                response.success = True
+                response.objects = self._objects_message(self.latest_settled[1])
+                response.message = f"settled: {len(self.latest_settled[1])} objects"
+                return response
             self.settle_requests.append(waiter)
         waiter.done.wait(request.timeout_s)
         with self.lock:
@@ -341,25 +352,7 @@ class PerceptionNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    refused = False
-    try:
-        node = PerceptionNode()
-        executor = MultiThreadedExecutor(num_threads=3)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (TsrrtError, ParameterException) as error:   # a bad file or parameter: refuse
-        rclpy.logging.get_logger("perception_node").fatal(f"cannot start: {error}")
-        refused = True
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if refused:
-        raise SystemExit(1)
+    run_node(PerceptionNode, "perception_node", threads=3, args=args)
 
 
 if __name__ == "__main__":
