@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 import rclpy
 import yaml
-from rclpy.action import ActionClient
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from tsrrt_common.camera import OverheadCamera
 from tsrrt_common.geometry import Pose2D
+from tsrrt_common.ros_node import ActionClient
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_interfaces.action import RunTask
 from tsrrt_interfaces.msg import ForwardModelArray, ObjectStateArray

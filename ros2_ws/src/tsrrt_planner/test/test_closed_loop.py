@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -11,9 +12,11 @@ from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.closed_loop import (
     ExecutionFailed,
+    LearningArea,
     PredictionTracker,
     PushOutcome,
     TaskSettings,
+    footprint_gap,
     learn_in_place,
     run_task,
     update_model_with_push,
@@ -50,8 +53,7 @@ def test_learning_in_place_converges_and_stays_on_the_table(object_id: str) -> N
         visited.append(outcome.after)
         return outcome
 
-    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
-                            toward=scenario.table.center)
+    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule())
     assert result.converged
     assert set(result.models) == {1, 2, 3, 4, 5, 6}
     assert result.trials == len(visited)
@@ -62,6 +64,84 @@ def test_learning_in_place_converges_and_stays_on_the_table(object_id: str) -> N
     assert result.models[1].mean[0] > 0 > result.models[2].mean[0]
     assert result.models[3].mean[1] > 0 > result.models[4].mean[1]
     assert result.models[5].mean[2] > 0 > result.models[6].mean[2]
+
+
+def _walk_near_edge_and_neighbour(area_on: bool):
+    """The eraser 3 cm from the near edge, the remote 3 cm beside it; learn and record poses."""
+    scenario = load_scenario("clean")
+    spec, neighbour = scenario.object("eraser"), scenario.object("remote")
+    x_min = scenario.table.bounds[0]
+    start = Pose2D(x_min + 0.03 + spec.length / 2.0, 0.0, 0.0)
+    neighbour_pose = Pose2D(start.x, start.y + spec.width / 2.0 + 0.03 + neighbour.width / 2.0,
+                            0.0)
+    area = LearningArea(scenario.table, ((neighbour, neighbour_pose),), edge_margin=0.02,
+                        clearance=0.015)
+    pusher = SimulatedPusher(scenario.objects, seed=5)
+    pusher.poses["eraser"] = start
+    visited = []
+
+    def execute(object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        outcome = _executor(pusher)(object_id, primitive, push_length)
+        visited.append(outcome.after)
+        return outcome
+
+    result = learn_in_place(spec, start, execute, ConfidenceStoppingRule(),
+                            area=area if area_on else None)
+    worst_edge = min(area.edge_distance(spec, pose) for pose in visited)
+    worst_gap = min(footprint_gap(spec, pose, neighbour, neighbour_pose) for pose in visited)
+    return result, worst_edge, worst_gap
+
+
+def test_learning_area_keeps_the_object_off_the_edge_and_away_from_neighbours() -> None:
+    result, worst_edge, worst_gap = _walk_near_edge_and_neighbour(area_on=True)
+    assert result.converged and set(result.models) == {1, 2, 3, 4, 5, 6}
+    # Predictions use the learned mean; the pusher's noise may cost a few millimetres.
+    assert worst_edge > 0.02 - 0.006 and worst_gap > 0.015 - 0.006
+    # Without the area the same walk does come closer (so the check above can fail).
+    _, edge_unguarded, gap_unguarded = _walk_near_edge_and_neighbour(area_on=False)
+    assert min(edge_unguarded - 0.02, gap_unguarded - 0.015) < -0.006
+
+
+def test_unlearnable_primitives_are_reported_with_the_reason() -> None:
+    """A neighbour on each long side leaves no room to rotate: 5 and 6 are never tried."""
+    scenario = load_scenario("clean")
+    spec, neighbour = scenario.object("eraser"), scenario.object("remote")
+    start = Pose2D(*scenario.table.center, 0.0)
+    offset = spec.width / 2.0 + 0.012 + neighbour.width / 2.0
+    others = ((neighbour, Pose2D(start.x, start.y + offset, 0.0)),
+              (dataclasses.replace(neighbour, id="remote_2"),
+               Pose2D(start.x, start.y - offset, 0.0)))
+    area = LearningArea(scenario.table, others, edge_margin=0.02, clearance=0.015)
+    pusher = SimulatedPusher(scenario.objects, seed=1)
+    pusher.poses["eraser"] = start
+    result = learn_in_place(spec, start, _executor(pusher), ConfidenceStoppingRule(), area=area)
+    assert not result.converged
+    rotations = [r for r in result.skipped if r.startswith(("primitive 5:", "primitive 6:"))]
+    assert len(rotations) == 2 and all("'remote" in reason for reason in rotations)
+
+
+def test_learning_area_accepts_a_push_that_improves_a_tight_start() -> None:
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    area = LearningArea(scenario.table, edge_margin=0.02)
+    x_min = scenario.table.bounds[0]
+    tight = Pose2D(x_min + 0.005 + spec.length / 2.0, 0.0, 0.0)
+    assert area.problem(spec, tight, Pose2D(tight.x + 0.04, 0.0, 0.0)) is None
+    reason = area.problem(spec, tight, Pose2D(tight.x - 0.004, 0.0, 0.0))
+    assert reason is not None and "table edge" in reason
+
+
+def test_footprint_gap_of_boxes_and_discs() -> None:
+    scenario = load_scenario("tset3")
+    plate = next(o for o in scenario.objects if o.shape == "cylinder")
+    box = load_scenario("clean").object("eraser")
+    radius = plate.length / 2.0
+    assert footprint_gap(plate, Pose2D(0, 0, 0), plate, Pose2D(2 * radius + 0.01, 0, 0)) == (
+        pytest.approx(0.01))
+    assert footprint_gap(box, Pose2D(0, 0, 0), plate,
+                         Pose2D(box.length / 2 + radius + 0.02, 0, 0)) == pytest.approx(0.02)
+    assert footprint_gap(plate, Pose2D(box.length / 2 + radius - 0.01, 0, 0), box,
+                         Pose2D(0, 0, 0)) == pytest.approx(-0.01)
 
 
 def test_blocked_pushes_are_skipped_and_retried_later() -> None:
@@ -76,8 +156,7 @@ def test_blocked_pushes_are_skipped_and_retried_later() -> None:
             raise ExecutionFailed(2, "ball path blocked by 'remote'", blocked=True)
         return _executor(pusher)(object_id, primitive, push_length)
 
-    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
-                            toward=scenario.table.center)
+    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule())
     assert refusals == [3, 3] and result.converged
 
 
@@ -91,8 +170,7 @@ def test_learning_gives_up_when_every_remaining_push_is_blocked() -> None:
             raise ExecutionFailed(2, "out of reach", blocked=True)
         return _executor(pusher)(object_id, primitive, push_length)
 
-    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
-                            toward=scenario.table.center)
+    result = learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule())
     assert not result.converged and set(result.models) == {1, 2, 5, 6}
 
 
@@ -100,10 +178,9 @@ def test_learning_continues_from_prior_statistics() -> None:
     scenario = load_scenario("clean")
     spec = scenario.object("eraser")
     pusher = SimulatedPusher(scenario.objects, seed=4)
-    first = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule(),
-                           toward=scenario.table.center)
+    first = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule())
     again = learn_in_place(spec, pusher.poses["eraser"], _executor(pusher),
-                           ConfidenceStoppingRule(), toward=scenario.table.center,
+                           ConfidenceStoppingRule(),
                            prior=first.statistics)
     assert again.trials == 0 and again.converged
     assert again.models[1].count == first.models[1].count
@@ -117,16 +194,14 @@ def test_other_execution_failures_propagate() -> None:
         raise ExecutionFailed(4, "tracking failed")
 
     with pytest.raises(ExecutionFailed, match="tracking failed"):
-        learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule(),
-                       toward=scenario.table.center)
+        learn_in_place(spec, spec.pose, execute, ConfidenceStoppingRule())
 
 
 def test_disc_learns_only_translation_primitives() -> None:
     scenario = load_scenario("tset3")
     spec = scenario.object("plate_1")
     pusher = SimulatedPusher(scenario.objects, seed=1)
-    result = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule(),
-                            toward=scenario.table.center)
+    result = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule())
     assert set(result.models) == {1, 2, 3, 4}
 
 
@@ -136,8 +211,7 @@ def test_learning_stops_when_cancelled() -> None:
     pusher = SimulatedPusher(scenario.objects, seed=0)
     calls = []
     result = learn_in_place(spec, spec.pose, _executor(pusher), ConfidenceStoppingRule(),
-                            toward=scenario.table.center, cancelled=lambda: len(calls) > 0,
-                            on_trial=calls.append)
+                            cancelled=lambda: len(calls) > 0, on_trial=calls.append)
     assert result.trials == 1 and not result.converged
 
 

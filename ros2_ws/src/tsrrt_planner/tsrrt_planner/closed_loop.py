@@ -4,10 +4,15 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
 
 * Learning keeps the object in the workspace (a real robot cannot teleport it back). Fig. 2 tries
   each primitive until its stopping rule holds, which walks the object off the table after a few
-  pushes. `learn_in_place` instead applies the primitives in opposing pairs (1 with 2, 3 with 4,
-  5 with 6), each pair in the order whose first push moves the object towards the table centre,
-  until every primitive's rule holds. Every push still updates its own primitive's distribution
-  exactly as Eq. 9 says; only the order of trials differs from Fig. 2.
+  pushes, or into its neighbours on a cluttered table. `learn_in_place` chooses every trial:
+  it predicts the object's pose after each primitive (the primitive's mean so far, or the
+  plausible pushing rule before its first trial), drops those that would bring the object within
+  `edge_margin` of the table edge or `clearance` of another object (`LearningArea`; an object that
+  starts closer may not get closer than it started), and of the primitives whose rule does
+  not hold yet takes the one with the fewest trials, then the one leaving the most room. When
+  none of those is possible, the push of any primitive that most increases the room repositions
+  the object (it is a trial too). Every push updates its own primitive's distribution exactly as
+  Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
 * Divergence: after each executed push the observed state is compared with the plan's prediction.
@@ -29,9 +34,10 @@ from typing import Protocol
 
 import numpy as np
 
-from tsrrt_common.geometry import Pose2D, angle_difference_modulo_symmetry
-from tsrrt_common.scenario import ObjectSpec, Scenario
+from tsrrt_common.geometry import Pose2D, angle_difference_modulo_symmetry, footprint_polygon
+from tsrrt_common.scenario import ObjectSpec, Scenario, Table
 from tsrrt_executor.push_primitives import DEFAULT_PUSH_LENGTH, primitives_for
+from tsrrt_planner.collision import box_box_signed_distance, box_disc_signed_distance
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import (
     DisplacementStats,
@@ -40,12 +46,12 @@ from tsrrt_planner.model_learning import (
     StoppingRule,
 )
 from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.push_rule import plausible_displacement, transfer_efficiency
 from tsrrt_planner.reachability import Reachability
 from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress
 
-OPPOSING_PAIRS: tuple[tuple[int, int], ...] = ((1, 2), (3, 4), (5, 6))
-# Direction of each primitive's intended motion in the object frame (rotation: sign only).
-_INTENDED_DIRECTION = {1: (1.0, 0.0), 2: (-1.0, 0.0), 3: (0.0, 1.0), 4: (0.0, -1.0)}
+# A repositioning push must gain at least this much room (m) to be worth a trial.
+REPOSITION_GAIN = 0.005
 
 
 class ExecutionFailed(PlannerError):
@@ -95,79 +101,159 @@ class LearningResult:
     pose: Pose2D
     converged: bool
     statistics: dict[int, DisplacementStats] = field(default_factory=dict)
+    skipped: list[str] = field(default_factory=list)  # why trials were left out
 
 
-def _pair_order(pair: tuple[int, int], pose: Pose2D, toward: tuple[float, float]
-                ) -> tuple[int, int]:
-    """The pair ordered so that its first push moves the object towards `toward`."""
-    first, second = pair
-    if first not in _INTENDED_DIRECTION:
-        return pair  # rotations: either order leaves the position nearly where it was
-    direction = pose.transform_point_to_world(np.array(_INTENDED_DIRECTION[first])) - np.array(
-        [pose.x, pose.y])
-    to_target = np.array(toward) - np.array([pose.x, pose.y])
-    return pair if float(direction @ to_target) >= 0.0 else (second, first)
+def footprint_gap(a: ObjectSpec, pose_a: Pose2D, b: ObjectSpec, pose_b: Pose2D) -> float:
+    """Signed distance between two footprints (negative: overlapping), metres."""
+    if a.shape != "box" and b.shape == "box":
+        a, pose_a, b, pose_b = b, pose_b, a, pose_a
+    if a.shape == "box" and b.shape == "box":
+        return float(box_box_signed_distance(
+            pose_a.as_array()[None], np.array([[a.length, a.width]]) / 2.0,
+            pose_b.as_array()[None], np.array([[b.length, b.width]]) / 2.0)[0])
+    if a.shape == "box":
+        return float(box_disc_signed_distance(
+            pose_a.as_array()[None], np.array([[a.length, a.width]]) / 2.0,
+            np.array([[pose_b.x, pose_b.y]]), np.array([b.length / 2.0]))[0])
+    return math.hypot(pose_a.x - pose_b.x, pose_a.y - pose_b.y) - (a.length + b.length) / 2.0
+
+
+@dataclass(frozen=True)
+class LearningArea:
+    """Where a learning push may leave its object: inside the table and clear of the others.
+
+    A pose inside a margin is still accepted when it is no closer (less `drift`) than where
+    learning started, so an object that starts near an edge or a neighbour can be learned.
+    """
+
+    table: Table
+    others: tuple[tuple[ObjectSpec, Pose2D], ...] = ()  # other objects and obstacles, fixed
+    edge_margin: float = 0.005
+    clearance: float = 0.03   # room for the ball (2.4 cm) to come down between two objects
+    # Inside a margin, a push may lose this much (m) to drift without counting as worse.
+    drift: float = 0.003
+
+    def edge_distance(self, spec: ObjectSpec, pose: Pose2D) -> float:
+        """Distance from the footprint to the nearest table edge (negative: overhanging)."""
+        footprint = footprint_polygon(spec.shape, spec.length, spec.width, pose)
+        x_min, y_min, x_max, y_max = self.table.bounds
+        low, high = footprint.min(axis=0), footprint.max(axis=0)
+        return float(min(low[0] - x_min, low[1] - y_min, x_max - high[0], y_max - high[1]))
+
+    def room(self, spec: ObjectSpec, pose: Pose2D) -> float:
+        """How far, beyond the margins, the object at `pose` is from the edge and the others."""
+        room = self.edge_distance(spec, pose) - self.edge_margin
+        for other, other_pose in self.others:
+            room = min(room, footprint_gap(spec, pose, other, other_pose) - self.clearance)
+        return room
+
+    def problem(self, spec: ObjectSpec, start: Pose2D, after: Pose2D) -> str | None:
+        """Why `spec` at `after` is not acceptable, or None; `start` is where learning began
+        (comparing with it, not with the last pose, keeps small losses from adding up)."""
+        edge = self.edge_distance(spec, after)
+        if edge < self.edge_margin and edge < self.edge_distance(spec, start) - self.drift:
+            return (f"would end {edge * 100:.1f} cm from the table edge "
+                    f"(minimum {self.edge_margin * 100:.1f} cm)")
+        for other, other_pose in self.others:
+            gap = footprint_gap(spec, after, other, other_pose)
+            if gap < self.clearance and gap < footprint_gap(spec, start, other,
+                                                            other_pose) - self.drift:
+                return f"would come within {max(gap, 0.0) * 100:.1f} cm of {other.id!r}"
+        return None
+
+
+def expected_displacement(spec: ObjectSpec, primitive: int, statistics: DisplacementStats,
+                          push_length: float) -> np.ndarray:
+    """Δs (3,) a trial is expected to cause: the mean so far, else the plausible rule with no
+    loss of travel (the most the push can move the object, to be on the safe side)."""
+    if statistics.count > 0:
+        return statistics.mean
+    return (plausible_displacement(spec, primitive, push_length)
+            / transfer_efficiency(spec.friction))
 
 
 def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: StoppingRule,
-                   toward: tuple[float, float], push_length: float = DEFAULT_PUSH_LENGTH,
-                   max_rounds: int = 40,
+                   push_length: float = DEFAULT_PUSH_LENGTH, max_rounds: int = 40,
                    on_trial: Callable[[LearningProgress], None] | None = None,
                    cancelled: Callable[[], bool] = lambda: False,
-                   prior: Mapping[int, DisplacementStats] | None = None) -> LearningResult:
-    """LEARN_MODEL (Fig. 2) for one object, trials ordered so the object stays in the workspace.
+                   prior: Mapping[int, DisplacementStats] | None = None,
+                   area: LearningArea | None = None) -> LearningResult:
+    """LEARN_MODEL (Fig. 2) for one object, trials chosen so the object stays in the workspace.
 
     Args:
         spec: the object (its shape decides which primitives exist).
         pose: its observed pose now.
         execute: executes one push and returns the settled observations around it.
         rule: the stopping rule applied to each primitive.
-        toward: point (x, y) the first push of each pair heads for, normally the table centre.
         push_length: the nominal push length the models are learned at.
-        max_rounds: rounds of all pairs before giving up on convergence.
+        max_rounds: at most this many trials per primitive, repositioning included.
         on_trial: progress callback after every push.
         cancelled: polled between pushes.
         prior: statistics learned earlier (e.g. loaded from disk) that trials add to.
+        area: where the object may be pushed (None: anywhere).
 
     Returns:
-        Models of every primitive, the trial count, the last pose and whether every rule holds.
+        Models of every primitive tried, the trial count, the last pose, whether every rule
+        holds, and why each primitive left unconverged could not be tried.
     """
     primitives = primitives_for(spec.shape)
     statistics = {p: DisplacementStats() for p in primitives}
     for p, known in (prior or {}).items():
         statistics[p] = DisplacementStats(known.count, known.mean.copy(), known.m2.copy())
-    pairs = [pair for pair in OPPOSING_PAIRS if pair[0] in primitives]
+    start = pose
+    refused: dict[int, str] = {}   # primitive -> why the robot refused it at the current pose
+    reasons: dict[int, str] = {}   # primitive -> why it was last left out
     trials = 0
-    for _ in range(max_rounds):
-        if all(rule.done(statistics[p]) for p in primitives):
-            break
-        trials_before_round = trials
-        for pair in pairs:
-            if rule.done(statistics[pair[0]]) and rule.done(statistics[pair[1]]):
+
+    def result(converged: bool) -> LearningResult:
+        skipped = [f"primitive {p}: {reasons[p]}" for p in primitives
+                   if p in reasons and not rule.done(statistics[p])]
+        return LearningResult(_models(spec, statistics, push_length), trials, pose, converged,
+                              statistics, skipped)
+
+    while trials < max_rounds * len(primitives):
+        pending = [p for p in primitives if not rule.done(statistics[p])]
+        if not pending:
+            return result(True)
+        if cancelled():
+            return result(False)
+        options: dict[int, float] = {}   # primitive -> room after it
+        for p in primitives:
+            if p in refused:
+                reasons[p] = refused[p]
                 continue
-            for primitive in _pair_order(pair, pose, toward):
-                if cancelled():
-                    return LearningResult(_models(spec, statistics, push_length), trials, pose,
-                                          False, statistics)
-                try:
-                    outcome = execute(spec.id, primitive, push_length)
-                except ExecutionFailed as failure:
-                    if not failure.blocked:
-                        raise
-                    # Blocked here; the other pairs move the object and may free it. Skip the
-                    # rest of this pair this round so the object does not drift one way.
-                    break
-                statistics[primitive].update(outcome.displacement)
-                pose = outcome.after
-                trials += 1
-                if on_trial is not None:
-                    on_trial(LearningProgress(spec.id, primitive, trials,
-                                              np.sqrt(statistics[primitive].variance)))
-        if trials == trials_before_round:
-            break  # every remaining push is blocked from here: more rounds change nothing
-    converged = all(rule.done(statistics[p]) for p in primitives)
-    return LearningResult(_models(spec, statistics, push_length), trials, pose, converged,
-                          statistics)
+            predicted = pose.apply_displacement(
+                expected_displacement(spec, p, statistics[p], push_length))
+            problem = area.problem(spec, start, predicted) if area is not None else None
+            if problem is not None:
+                reasons[p] = f"from ({pose.x:.3f}, {pose.y:.3f}) it {problem}"
+                continue
+            options[p] = area.room(spec, predicted) if area is not None else 0.0
+        learning = [p for p in pending if p in options]
+        if learning:
+            primitive = min(learning, key=lambda p: (statistics[p].count, -options[p]))
+        else:
+            room_now = area.room(spec, pose) if area is not None else 0.0
+            better = [p for p in options if options[p] > room_now + REPOSITION_GAIN]
+            if not better:
+                return result(False)
+            primitive = max(better, key=lambda p: options[p])
+        try:
+            outcome = execute(spec.id, primitive, push_length)
+        except ExecutionFailed as failure:
+            if not failure.blocked:
+                raise
+            refused[primitive] = str(failure)   # until the object moves
+            continue
+        refused.clear()
+        statistics[primitive].update(outcome.displacement)
+        pose = outcome.after
+        trials += 1
+        if on_trial is not None:
+            on_trial(LearningProgress(spec.id, primitive, trials,
+                                      np.sqrt(statistics[primitive].variance)))
+    return result(all(rule.done(statistics[p]) for p in primitives))
 
 
 def _models(spec: ObjectSpec, statistics: Mapping[int, DisplacementStats],
@@ -314,11 +400,12 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
              target: np.ndarray | None = None,
              on_event: Callable[[str, TaskReport], None] = lambda phase, report: None,
              cancelled: Callable[[], bool] = lambda: False,
-             on_model_update: Callable[[], None] = lambda: None) -> TaskReport:
+             on_model_update: Callable[[], None] = lambda: None,
+             on_plan: Callable[[PlanResult], None] = lambda plan: None) -> TaskReport:
     """Plan, execute push by push, replan on divergence, until the objective converges.
 
     The forward models in `store` must already cover every object (learning comes first);
-    every executed push is folded into its model.
+    every executed push is folded into its model. `on_plan` sees every (re)plan.
     """
     report = TaskReport(lower_bound=lower_bound_cost)
     began = time.monotonic()
@@ -332,6 +419,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         problem, result = plan_from(scenario, observed, store, reachability, settings,
                                     lower_bound_cost, target, cancelled)
         report.planning_s += result.elapsed_s
+        on_plan(result)
         current = float(result.costs[0])
         if math.isnan(report.start_cost):
             report.start_cost = current

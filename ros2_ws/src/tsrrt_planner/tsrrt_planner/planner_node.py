@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from builtin_interfaces.msg import Time as TimeMessage
 from geometry_msgs.msg import Point, Vector3
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -34,10 +35,8 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
-from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import ColorRGBA
@@ -45,6 +44,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, footprint_polygon
+from tsrrt_common.ros_node import ActionClient, run_node
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_executor.push_primitives import primitives_for
 from tsrrt_executor.reachability import default_map
@@ -54,6 +54,7 @@ from tsrrt_interfaces.msg import ForwardModelArray, ObjectState, ObjectStateArra
 from tsrrt_interfaces.srv import GetSettledObjects
 from tsrrt_planner.closed_loop import (
     ExecutionFailed,
+    LearningArea,
     LearningProgress,
     PushOutcome,
     TaskReport,
@@ -135,9 +136,13 @@ class RosTaskEnvironment:
         self.node = node
         self.object_ids = object_ids
         self.cancelled = cancelled
+        # Stamp of the executor's settled observation after the last push: the scene it shows
+        # is current, so the next observe() need not wait for a newer frame.
+        self.last_push_seen: TimeMessage | None = None
 
     def observe(self) -> dict[str, Pose2D]:
-        states = self.node.settled_objects()
+        states = self.node.settled_objects(self.last_push_seen)
+        self.last_push_seen = None
         self.node.publish_observation(states)
         poses = {s.id: Pose2D(s.x, s.y, s.theta) for s in states
                  if s.status != ObjectState.STATUS_LOST}
@@ -153,6 +158,7 @@ class RosTaskEnvironment:
             blocked = result.error_code == ExecutePrimitive.Result.UNREACHABLE
             raise ExecutionFailed(result.error_code, result.error_msg, blocked)
         before, after = result.before, result.after
+        self.last_push_seen = after.last_seen
         return PushOutcome(Pose2D(before.x, before.y, before.theta),
                            Pose2D(after.x, after.y, after.theta))
 
@@ -223,6 +229,10 @@ class PlannerNode(Node):
                                                     "confidence rule: half-width, m"))
         declare("angle_tolerance", 0.035, _float(1e-4, 1.0,
                                                  "confidence rule: half-width, rad"))
+        declare("learning_edge_margin", 0.005, _float(0.0, 0.2,
+                "closest a learning push may bring an object to the table edge, m"))
+        declare("learning_clearance", 0.03, _float(0.0, 0.2,
+                "closest a learning push may bring an object to another one, m"))
         declare("lower_bound_starts", 12, _integer(1, 1000, "multi-starts of the lower bound"))
         declare("server_timeout_s", 5.0, _float(0.1, 600.0,
                                                 "wait for executor/perception servers, s"))
@@ -326,12 +336,14 @@ class PlannerNode(Node):
         self.observed_publisher.publish(message)
 
     # ------------------------------------------------------------------ calls to other nodes
-    def settled_objects(self) -> list[ObjectState]:
+    def settled_objects(self, not_before: TimeMessage | None = None) -> list[ObjectState]:
+        """A settled observation: stamped at or after `not_before`, else taken after now."""
         if not self.settled_client.wait_for_service(timeout_sec=self._param("server_timeout_s")):
             raise GoalFailed("NO_OBSERVATION",
                              "perception's /perception/get_settled_objects is not available")
         timeout = self._param("observe_timeout_s")
-        future = self.settled_client.call_async(GetSettledObjects.Request(timeout_s=timeout))
+        future = self.settled_client.call_async(GetSettledObjects.Request(
+            timeout_s=timeout, not_before=not_before or TimeMessage()))
         if not wait_for_future(future, timeout + 5.0):
             raise GoalFailed("NO_OBSERVATION",
                              f"no settled observation within {timeout:.0f} s")
@@ -446,16 +458,24 @@ class PlannerNode(Node):
             spec = self.scenario.object(object_id)
             if not self._needs_learning(object_id, primitives_for(spec.shape), rule):
                 continue
-            pose = environment.observe()[object_id]
+            observed = environment.observe()
+            pose = observed[object_id]
+            area = LearningArea(self.scenario.table, tuple(
+                [(o, observed[o.id]) for o in self.scenario.objects if o.id != object_id]
+                + [(o, o.pose) for o in self.scenario.obstacles]),
+                edge_margin=self._param("learning_edge_margin"),
+                clearance=self._param("learning_clearance"))
             self.get_logger().info(f"learning push models of {object_id}")
             done_before = trials
             prior = {p: DisplacementStats(m.count, m.mean.copy(), m.m2.copy())
                      for (o, p), m in self.store.models.items() if o == object_id}
             learned = learn_in_place(
-                spec, pose, environment.execute, rule, toward=self.scenario.table.center,
+                spec, pose, environment.execute, rule,
                 on_trial=lambda progress, before=done_before: on_trial(
                     progress, before + progress.trials),
-                cancelled=cancelled, prior=prior)
+                cancelled=cancelled, prior=prior, area=area)
+            for reason in learned.skipped:
+                self.get_logger().warning(f"{object_id}: could not learn {reason}")
             trials += learned.trials
             for model in learned.models.values():
                 self.store.add(model, spec.object_class)
@@ -568,7 +588,7 @@ class PlannerNode(Node):
 
             report = run_task(self.scenario, self.store, environment, self.reachability,
                               settings, bound.cost, bound.state, on_event, cancelled,
-                              on_model_update=self._save_models)
+                              on_model_update=self._save_models, on_plan=self._publish_plan)
             result.final_cost, result.predicted_cost = report.final_cost, report.predicted_cost
             result.lower_bound, result.pushes = bound.cost, report.pushes
             result.replans, result.planning_s = report.replans, report.planning_s
@@ -645,25 +665,7 @@ def _object_state(spec, pose: Pose2D) -> ObjectState:
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    refused = False
-    try:
-        node = PlannerNode()
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (TsrrtError, ParameterException) as error:   # a bad file or parameter: refuse
-        rclpy.logging.get_logger("planner_node").fatal(f"cannot start: {error}")
-        refused = True
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if refused:
-        raise SystemExit(1)
+    run_node(PlannerNode, "planner_node", threads=4, args=args)
 
 
 if __name__ == "__main__":
