@@ -14,12 +14,19 @@ simulation time. Rates:
   2 s of simulated time. Frames are rendered in a worker process while physics continues, and
   each frame (with its ground truth on /sim/object_states) is stamped with the simulation time
   of the state it shows.
+
+Faults: camera_drop_fraction leaves that fraction of rendered frames unpublished (colour, depth
+and camera info; chosen at random with a fixed seed, so a run is repeatable), as a lossy link
+would, for testing that perception and the planner cope. Unlike the other parameters it can be
+changed while the node runs, to inject the fault mid-task. Ground truth is published for every
+frame: it is the simulator's own record, not a camera.
 """
 
 from __future__ import annotations
 
 import math
 import queue
+import random
 import threading
 import time
 from collections.abc import Callable
@@ -105,6 +112,7 @@ class SimNode(Node):
         self.joint_state_period = 1.0 / p("joint_state_rate_hz")
         self.camera_period = 1.0 / p("camera_rate_hz")
         self.feedback_period = 1.0 / p("feedback_rate_hz")
+        self._drop_random = random.Random(0)
         tolerances = Tolerances.uniform(
             path_position=p("path_tolerance"), path_velocity=0.0,
             goal_position=p("goal_tolerance"), goal_velocity=p("stopped_velocity_tolerance"),
@@ -150,7 +158,7 @@ class SimNode(Node):
         self.get_logger().info(
             f"simulating '{scenario.name}' at {self.physics_hz:g} Hz, real-time factor "
             f"{self.real_time_factor or 'unlimited'}, camera {1 / self.camera_period:g} Hz "
-            "(wall clock)")
+            f"(wall clock), {p('camera_drop_fraction'):.0%} of frames dropped")
 
     # ---------------------------------------------------------------------------- parameters
     def _declare_parameters(self) -> None:
@@ -176,6 +184,10 @@ class SimNode(Node):
                "/joint_states messages per simulated second (at most one per clock tick)")
         number("camera_rate_hz", 10.0, 0.1, 60.0,
                "camera frames per WALL-CLOCK second (rendering is the bottleneck)")
+        self.declare_parameter("camera_drop_fraction", 0.0, ParameterDescriptor(
+            description="fraction of camera frames left unpublished, at random (fault "
+            "injection; settable at runtime)",
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
         number("feedback_rate_hz", 10.0, 0.5, 100.0,
                "trajectory action feedback per wall-clock second")
         number("kp", 2500.0, 1.0, 1e5, "computed-torque position gain, 1/s^2")
@@ -283,6 +295,10 @@ class SimNode(Node):
             self._publish_ground_truth(state)
 
     def _publish_frame(self, frame: CameraFrame, state: VisualState) -> None:
+        drop_fraction = self._parameter("camera_drop_fraction")
+        if drop_fraction > 0.0 and self._drop_random.random() < drop_fraction:
+            self._publish_ground_truth(state)
+            return
         header_stamp = stamp(frame.sim_time)
         rgb = numpy_to_image(frame.rgb, "rgb8")
         depth = numpy_to_image(frame.depth, "32FC1")
