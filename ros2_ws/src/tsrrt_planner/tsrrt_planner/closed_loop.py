@@ -15,6 +15,10 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
+  Relative to the larger of the cost and the task's range (start cost to lower bound): where
+  the optimum is zero, 1 % of the cost is micrometres, and plans that detour far for that much
+  were executed. For the same reason a plan is abandoned for a fresh one once what is left of
+  it promises less than that.
 * Divergence: after each executed push the observed state is compared with the plan's prediction.
   The prediction's uncertainty grows with every push an object received since the plan started
   (variances of independent pushes add), so an object has diverged when its position error exceeds
@@ -428,7 +432,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         if not report.costs:
             report.costs.append(current)
         improvement = current - result.best_cost
-        if not result.steps or improvement <= settings.convergence * max(abs(current), 1e-9):
+        if not result.steps or _negligible(improvement, current, report, settings):
             report.converged = True
             report.stop_reason = "converged"
             return report
@@ -438,6 +442,9 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             if cancelled():
                 report.stop_reason = "cancelled"
                 return report
+            if k > 0 and _negligible(float(result.costs[k]) - result.best_cost,
+                                     float(result.costs[k]), report, settings):
+                break   # the rest of the plan is not worth its pushes: plan afresh
             if report.pushes >= settings.max_pushes:
                 report.stop_reason = "push budget"
                 return report
@@ -468,6 +475,17 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                     return report
                 on_event("replanning", report)
                 break
+
+
+def _negligible(improvement: float, cost: float, report: TaskReport,
+               settings: TaskSettings) -> bool:
+    """Whether a predicted improvement is below `convergence` of the larger of the cost and
+    the task's range (start cost to lower bound), so a zero optimum is not chased to the last
+    micrometre."""
+    scale = max(abs(cost), 1e-9)
+    if math.isfinite(report.lower_bound) and math.isfinite(report.start_cost):
+        scale = max(scale, report.start_cost - report.lower_bound)
+    return improvement <= settings.convergence * scale
 
 
 def _state_of(problem: PlanningProblem, poses: Mapping[str, Pose2D]) -> np.ndarray:
