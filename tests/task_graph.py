@@ -1,0 +1,209 @@
+"""The four nodes on a small task, for the tests that run whole tasks (integration/test_run_task,
+reliability/test_faults, reliability/test_soak).
+
+`TaskGraph` starts sim, perception, executor and planner through conftest's `launch` on the
+module's domain, with a copy of a model file learned beforehand (the planner saves every executed
+push into its file, and the shipped one must stay as it is), and uses conftest's probe to send
+goals, call services and read the simulator's ground truth. The planner acts on perception only;
+ground truth is read here to judge the outcome, as scripts/demo.py does.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import JointState
+
+from tsrrt_common.geometry import Pose2D
+from tsrrt_common.ros_node import ActionClient
+from tsrrt_common.scenario import Scenario, load_scenario
+from tsrrt_interfaces.action import ExecutePrimitive, LearnModels, PlanTask, RunTask
+from tsrrt_interfaces.msg import ObjectStateArray
+from tsrrt_interfaces.srv import DisturbObject, LoadScenario
+from tsrrt_planner.objectives import Objective, build_objective
+
+DATA = Path(__file__).resolve().parent / "data"
+SMALL_SCENARIO = DATA / "two_boxes.yaml"
+SMALL_MODELS = DATA / "two_boxes_models.yaml"
+RESULT_NAMES = {value: name for name, value in vars(RunTask.Result).items()
+                if name.isupper() and isinstance(value, int)}
+STARTUP_TIMEOUT_S = 120.0       # a node's servers to appear on a loaded 2-core machine
+TASK_TIMEOUT_S = 400.0          # a RunTask on the small scenario, generously
+# The simulator paced at 10x real time instead of flat out: a push still takes about a second
+# of wall time, and the physics thread leaves the cores to the other nodes (flat out, it starved
+# the sim's own action server on a loaded 2-core machine).
+SIM_PARAMETERS = ("real_time_factor:=10.0",)
+# Wall-clock waits of the executor for the controller, raised from 5 s: on a shared 2-core
+# machine an answer took longer than that now and then. What a missing server gives is tested
+# against the planner's own timeout (test_faults.py), which is left at its default.
+EXECUTOR_PARAMETERS = ("server_timeout:=15.0",)
+
+
+class TaskGraph:
+    """sim, perception, executor and planner on `scenario`, and clients for running tasks."""
+
+    def __init__(self, launch, probe, folder: Path, scenario: Path = SMALL_SCENARIO,
+                 models: Path = SMALL_MODELS, sim: tuple[str, ...] = (),
+                 planner: tuple[str, ...] = ()) -> None:
+        self.launch, self.probe = launch, probe
+        self.scenario_path = scenario
+        self.scenario: Scenario = load_scenario(str(scenario))
+        self.objective: Objective = build_objective(self.scenario)
+        self.models_path = folder / "models.yaml"
+        shutil.copy(models, self.models_path)
+        self.sim_parameters, self.planner_parameters = sim, planner
+        self.truth: list[ObjectStateArray] = probe.record(ObjectStateArray, "/sim/object_states")
+        self.run_client = ActionClient(probe, RunTask, "/planner/run_task")
+        self.plan_client = ActionClient(probe, PlanTask, "/planner/plan_task")
+        self.learn_client = ActionClient(probe, LearnModels, "/planner/learn_models")
+        self.execute_client = ActionClient(probe, ExecutePrimitive, "/executor/execute_primitive")
+        self.disturb_client = probe.create_client(DisturbObject, "/sim/disturb_object")
+        self.load_client = probe.create_client(LoadScenario, "/sim/load_scenario")
+        self.sim_parameter_client = AsyncParameterClient(probe, "sim_node")
+        self.processes: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ processes
+    def start(self, *, wait: bool = True) -> TaskGraph:
+        """Start the four nodes (each once) and wait for the planner's and sim's servers."""
+        scenario = f"scenario:={self.scenario_path}"
+        self.processes["sim_node"] = self.launch.start(
+            "tsrrt_sim", "sim_node", scenario, *SIM_PARAMETERS, *self.sim_parameters)
+        self.start_perception()
+        self.start_executor()
+        self.start_planner()
+        if wait:
+            self.wait_ready()
+        return self
+
+    def start_perception(self) -> Any:
+        self.processes["perception_node"] = self.launch.start(
+            "tsrrt_perception", "perception_node", f"scenario:={self.scenario_path}")
+        return self.processes["perception_node"]
+
+    def start_executor(self) -> Any:
+        self.processes["executor_node"] = self.launch.start("tsrrt_executor", "executor_node",
+                                                            *EXECUTOR_PARAMETERS)
+        return self.processes["executor_node"]
+
+    def start_planner(self) -> Any:
+        self.processes["planner_node"] = self.launch.start(
+            "tsrrt_planner", "planner_node", f"scenario:={self.scenario_path}",
+            f"models_path:={self.models_path}", *self.planner_parameters)
+        return self.processes["planner_node"]
+
+    def wait_ready(self) -> None:
+        """Every action server and service the tests use is up (discovery included)."""
+        for client in (self.run_client, self.plan_client, self.execute_client):
+            assert client.wait_for_server(timeout_sec=STARTUP_TIMEOUT_S), \
+                f"{client._action_name} did not come up:\n{self.logs()}"
+        for client in (self.disturb_client, self.load_client):
+            assert client.wait_for_service(timeout_sec=STARTUP_TIMEOUT_S), \
+                f"{client.srv_name} did not come up:\n{self.logs()}"
+        self.wait_for_perception()
+
+    def wait_for_perception(self, timeout: float = STARTUP_TIMEOUT_S) -> ObjectStateArray:
+        """The next /perception/objects message that shows every object of the scenario."""
+        ids = {o.id for o in self.scenario.objects}
+        seen: list[ObjectStateArray] = []
+        subscription = self.probe.create_subscription(
+            ObjectStateArray, "/perception/objects", seen.append, 10)
+        try:
+            assert self.probe.spin_until(
+                lambda: bool(seen) and ids <= {s.id for s in seen[-1].objects}, timeout), \
+                f"perception does not show {sorted(ids)}:\n{self.logs()}"
+        finally:
+            self.probe.destroy_subscription(subscription)
+        return seen[-1]
+
+    def logs(self, tail: int = 3000) -> str:
+        return "\n".join(f"--- {name} ---\n{process.log()[-tail:]}"
+                         for name, process in self.processes.items())
+
+    # ------------------------------------------------------------------ the world
+    def reset(self) -> None:
+        """Put the objects back at the scenario's start (and the arm in its observe posture)."""
+        response = self.probe.call(self.load_client, LoadScenario.Request(
+            scenario=str(self.scenario_path), seed=-1), timeout=60.0)
+        assert response.success, response.message
+        self.fresh_truth()
+        self.wait_for_perception()
+
+    def fresh_truth(self, timeout: float = 30.0) -> dict[str, Pose2D]:
+        """True poses from a /sim/object_states message received after this call."""
+        count = len(self.truth)
+        assert self.probe.spin_until(lambda: len(self.truth) > count, timeout), \
+            "no ground truth from the simulator"
+        return {s.id: Pose2D(s.x, s.y, s.theta) for s in self.truth[-1].objects}
+
+    def true_cost(self, poses: dict[str, Pose2D] | None = None) -> float:
+        """The scenario's objective at the simulator's true poses (now, unless given)."""
+        poses = poses if poses is not None else self.fresh_truth()
+        state = np.array([poses[o.id].as_array() for o in self.scenario.objects])
+        return float(self.objective.cost(state))
+
+    def disturb(self, object_id: str, dx: float, dy: float, dtheta: float = 0.0) -> str:
+        response = self.probe.call(self.disturb_client, DisturbObject.Request(
+            object_id=object_id, dx=dx, dy=dy, dtheta=dtheta))
+        assert response.success, response.message
+        return response.message
+
+    def set_sim_parameter(self, name: str, value: float) -> None:
+        assert self.sim_parameter_client.wait_for_services(timeout_sec=30.0)
+        future = self.sim_parameter_client.set_parameters([Parameter(name, value=value)])
+        results = self.probe.wait_for(future).results
+        assert results[0].successful, results[0].reason
+
+    def joint_positions(self, timeout: float = 10.0) -> np.ndarray:
+        """Arm joint positions from a /joint_states message received after this call
+        (subscribed only then: at full simulation speed it is hundreds of messages a second)."""
+        return np.array(self.probe.next_message(JointState, "/joint_states",
+                                                timeout=timeout).position)
+
+    # ------------------------------------------------------------------ tasks
+    def send_task(self, goal: RunTask.Goal | None = None, feedback: list | None = None):
+        """Send a RunTask goal; returns its (accepted) handle."""
+        handle = self.probe.send_goal(self.run_client, goal or RunTask.Goal(), feedback)
+        assert handle.accepted, "RunTask rejected"
+        return handle
+
+    def wait_result(self, handle, timeout: float = TASK_TIMEOUT_S,
+                    during: Callable[[], None] | None = None) -> tuple[int, RunTask.Result]:
+        """(status, result) of a goal; `during` runs between spins while it is pending."""
+        future = handle.get_result_async()
+        deadline = time.monotonic() + timeout
+        while not future.done():
+            assert time.monotonic() < deadline, f"no result within {timeout} s:\n{self.logs()}"
+            self.probe.spinner.spin_once(timeout_sec=0.05)
+            if during is not None:
+                during()
+        wrapped = future.result()
+        return wrapped.status, wrapped.result
+
+    def run_task(self, goal: RunTask.Goal | None = None, feedback: list | None = None,
+                 during: Callable[[], None] | None = None,
+                 timeout: float = TASK_TIMEOUT_S) -> tuple[int, RunTask.Result]:
+        return self.wait_result(self.send_task(goal, feedback), timeout, during)
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float = TASK_TIMEOUT_S) -> bool:
+        return self.probe.spin_until(condition, timeout)
+
+
+def describe(result: RunTask.Result) -> str:
+    """One line for assertion messages: code, message and the figures of a RunTask result."""
+    return (f"{RESULT_NAMES.get(result.error_code, result.error_code)} {result.error_msg!r}: "
+            f"final {result.final_cost:.4f}, predicted {result.predicted_cost:.4f}, "
+            f"pushes {result.pushes}, replans {result.replans}, "
+            f"learning trials {result.learning_trials}")
+
+
+def executed_pushes(feedback: list) -> int:
+    """Pushes done so far according to a RunTask's feedback messages."""
+    return max((message.feedback.pushes_done for message in feedback
+                if message.feedback.phase != "learning"), default=0)
