@@ -131,6 +131,9 @@ class ExecutorNode(Node):
         self.objects_count = 0                   # /perception/objects messages received
         self.objects_event = threading.Event()
         self.busy = False
+        # Robot time since which this node has kept the arm still at the observe posture (None
+        # while it moves): a settled frame stamped after it shows the scene as it is now.
+        self.still_since: float | None = None
         self.stage_times: dict[str, float] = {}   # wall seconds per stage of the current goal
         self.stage_start = 0.0
         group = ReentrantCallbackGroup()
@@ -398,8 +401,9 @@ class ExecutorNode(Node):
             [s.height for s in latest], minimum=settings.safe_height)
         self._return_to_observe(goal_handle, q_current, safe_z, settings)
         self._mark("park")
-        target, before_states = self._settled_observation(goal_handle, goal.object_id,
-                                                          self._robot_time())
+        target, before_states = self._settled_observation(
+            goal_handle, goal.object_id,
+            self.still_since if self.still_since is not None else self._robot_time())
         self._mark("before")
         others = [table_object(s) for i, s in before_states.items() if i != goal.object_id]
         try:
@@ -428,7 +432,9 @@ class ExecutorNode(Node):
                              f"{controller_result.tool_max_error * 1000:.1f} mm exceeds "
                              f"max_tool_error {self._value('max_tool_error') * 1000:.1f} mm")
         self._feedback(goal_handle, Feedback.PHASE_SETTLING, 0.0)
-        after, _ = self._settled_observation(goal_handle, goal.object_id, self._robot_time())
+        motion_end = self._robot_time()
+        after, _ = self._settled_observation(goal_handle, goal.object_id, motion_end)
+        self.still_since = motion_end
         result.after = after
         self._mark("after")
         self._feedback(goal_handle, Feedback.PHASE_SETTLING, 1.0)
@@ -467,6 +473,7 @@ class ExecutorNode(Node):
         server_timeout and /joint_states must keep coming while it runs.
         """
         self._require_controller()
+        self.still_since = None
         progress = PhaseProgress(trajectory)
         # Feedback callbacks may run on several executor threads at once: one at a time, so
         # that phases are published in order.

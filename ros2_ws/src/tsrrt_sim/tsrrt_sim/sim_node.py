@@ -76,6 +76,7 @@ CAMERA_FRAME = "camera_optical"
 REQUEST_TIMEOUT_S = 30.0
 # If pacing falls this far behind the wall clock, restart it instead of running in a burst.
 MAX_PACING_LAG_S = 0.5
+GOAL_POLL_PERIOD_S = 0.005   # wall s between checks whether a trajectory goal has finished
 
 T = TypeVar("T")
 
@@ -152,6 +153,7 @@ class SimNode(Node):
 
         self._requests: queue.Queue[tuple[Callable[[], Any], Future]] = queue.Queue()
         self._stop = threading.Event()
+        self._frame_requested = threading.Event()
         self._physics_thread = threading.Thread(target=self._physics_loop, name="physics",
                                                 daemon=True)
         self._physics_thread.start()
@@ -256,8 +258,12 @@ class SimNode(Node):
                 if frame is not None:
                     self._publish_frame(frame, self._pending_visual_state)
                 now_wall = time.monotonic()
-                if now_wall >= next_frame_wall and not self.renderer.busy:
+                # A finished trajectory gets a frame at once: whoever moved the arm out of view
+                # is waiting to see the scene it left.
+                frame_now = self._frame_requested.is_set()
+                if (now_wall >= next_frame_wall or frame_now) and not self.renderer.busy:
                     next_frame_wall = max(next_frame_wall + self.camera_period, now_wall)
+                    self._frame_requested.clear()
                     self._start_frame()
                 if self.real_time_factor > 0:
                     target = wall_origin + (now_sim - sim_origin) / self.real_time_factor
@@ -377,14 +383,17 @@ class SimNode(Node):
             result.error_code, result.error_string = int(error.code), str(error)
             return result
         published = False
+        next_feedback = time.monotonic()
         while not execution.done:
             if goal_handle.is_cancel_requested:
                 self._call_in_physics(lambda: self.world.controller.cancel(execution))
                 continue
-            if execution.desired is not None:
+            if execution.desired is not None and time.monotonic() >= next_feedback:
                 goal_handle.publish_feedback(self._feedback(execution))
                 published = True
-            time.sleep(self.feedback_period)
+                next_feedback += self.feedback_period
+            time.sleep(GOAL_POLL_PERIOD_S)
+        self._frame_requested.set()
         if not published and execution.desired is not None:
             # At full sim speed a short trajectory can end before the first feedback period;
             # every executed goal still reports at least its final state.
