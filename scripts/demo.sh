@@ -23,9 +23,10 @@ done
 TSRRT_SETUP_QUIET=1 bash "$ROOT/scripts/setup.sh"
 # shellcheck source=scripts/env.sh
 source "$ROOT/scripts/env.sh"
-# A DDS domain of its own unless the caller chose one, so that two demos (or a demo and a test
-# run) on one machine never see each other's nodes; inspect it with the printed id.
-export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((RANDOM % 101 + 1))}"
+# A DDS domain of its own unless the caller chose one, so that a demo never sees the nodes of a
+# test run (tests take 1..101) or, most likely, of another demo; inspect it with the printed id.
+# 215..232 are the other domain ids whose UDP ports are valid on Linux.
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$((RANDOM % 18 + 215))}"
 echo "[demo] ROS_DOMAIN_ID=$ROS_DOMAIN_ID"
 # Relative paths are taken from the caller's directory, as the user typed them.
 exec python "$ROOT/scripts/demo.py" --scenario "$scenario" --out "$out" ${extra[@]+"${extra[@]}"}

@@ -131,6 +131,19 @@ def test_learning_area_accepts_a_push_that_improves_a_tight_start() -> None:
     assert reason is not None and "table edge" in reason
 
 
+def test_learning_area_keeps_faces_within_reach() -> None:
+    """A push towards the base that takes the near face's approach point inside the arm's
+    minimum radius is refused; one away from the base is fine."""
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    area = LearningArea(scenario.table, reach=AnnulusReachability(0.25, 0.75))
+    start = Pose2D(0.35, 0.0, 0.0)   # near face's approach point at 0.35 - 0.06 - 0.03 = 0.26
+    assert area.unreachable_faces(spec, start) == 0
+    reason = area.problem(spec, start, Pose2D(0.33, 0.0, 0.0))
+    assert reason is not None and "out of the arm's reach" in reason
+    assert area.problem(spec, start, Pose2D(0.40, 0.0, 0.0)) is None
+
+
 def test_footprint_gap_of_boxes_and_discs() -> None:
     scenario = load_scenario("tset3")
     plate = next(o for o in scenario.objects if o.shape == "cylinder")

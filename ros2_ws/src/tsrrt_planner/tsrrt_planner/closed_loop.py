@@ -8,11 +8,12 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   it predicts the object's pose after each primitive (the primitive's mean so far, or the
   plausible pushing rule before its first trial), drops those that would bring the object within
   `edge_margin` of the table edge or `clearance` of another object (`LearningArea`; an object that
-  starts closer may not get closer than it started), and of the primitives whose rule does
-  not hold yet takes the one with the fewest trials, then the one leaving the most room. When
-  none of those is possible, the push of any primitive that most increases the room repositions
-  the object (it is a trial too). Every push updates its own primitive's distribution exactly as
-  Eq. 9 says; only the choice of trials differs from Fig. 2.
+  starts closer may not get closer than it started; where the nominal push does not fit, 60 % or
+  40 % of it may, and counts rescaled to the nominal length as the planner scales pushes), and of
+  the primitives whose rule does not hold yet takes the one with the fewest trials, then the one
+  leaving the most room. When none of those is possible, the push of any primitive that most
+  increases the room repositions the object (it is a trial too). Every push updates its own
+  primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
   Relative to the larger of the cost and the task's range (start cost to lower bound): where
@@ -56,6 +57,8 @@ from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress
 
 # A repositioning push must gain at least this much room (m) to be worth a trial.
 REPOSITION_GAIN = 0.005
+# Where the nominal push does not fit, a learning trial may be this fraction of it.
+LEARNING_PUSH_FRACTIONS = (1.0, 0.6, 0.4)
 
 
 class ExecutionFailed(PlannerError):
@@ -134,9 +137,21 @@ class LearningArea:
     table: Table
     others: tuple[tuple[ObjectSpec, Pose2D], ...] = ()  # other objects and obstacles, fixed
     edge_margin: float = 0.005
-    clearance: float = 0.03   # room for the ball (2.4 cm) to come down between two objects
+    clearance: float = 0.01
     # Inside a margin, a push may lose this much (m) to drift without counting as worse.
     drift: float = 0.003
+    reach: Reachability | None = None   # the arm's; no push may take a face out of it
+
+    def unreachable_faces(self, spec: ObjectSpec, pose: Pose2D) -> int:
+        """How many of the four faces' approach points (just off each face, where the ball
+        comes down) the arm cannot reach."""
+        if self.reach is None:
+            return 0
+        offset = 0.03   # ball radius, approach clearance and back-off, rounded up
+        half_length, half_width = spec.length / 2.0 + offset, spec.width / 2.0 + offset
+        points = pose.transform_point_to_world(np.array([
+            [half_length, 0.0], [-half_length, 0.0], [0.0, half_width], [0.0, -half_width]]))
+        return int(np.count_nonzero(~self.reach.reachable(points)))
 
     def edge_distance(self, spec: ObjectSpec, pose: Pose2D) -> float:
         """Distance from the footprint to the nearest table edge (negative: overhanging)."""
@@ -155,6 +170,9 @@ class LearningArea:
     def problem(self, spec: ObjectSpec, start: Pose2D, after: Pose2D) -> str | None:
         """Why `spec` at `after` is not acceptable, or None; `start` is where learning began
         (comparing with it, not with the last pose, keeps small losses from adding up)."""
+        lost = self.unreachable_faces(spec, after) - self.unreachable_faces(spec, start)
+        if lost > 0:
+            return f"would take {lost} more face(s) out of the arm's reach"
         edge = self.edge_distance(spec, after)
         if edge < self.edge_margin and edge < self.edge_distance(spec, start) - self.drift:
             return (f"would end {edge * 100:.1f} cm from the table edge "
@@ -222,36 +240,41 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
             return result(True)
         if cancelled():
             return result(False)
-        options: dict[int, float] = {}   # primitive -> room after it
+        options: dict[int, tuple[float, float]] = {}   # primitive -> (push length, room after)
         for p in primitives:
             if p in refused:
                 reasons[p] = refused[p]
                 continue
-            predicted = pose.apply_displacement(
-                expected_displacement(spec, p, statistics[p], push_length))
-            problem = area.problem(spec, start, predicted) if area is not None else None
-            if problem is not None:
-                reasons[p] = f"from ({pose.x:.3f}, {pose.y:.3f}) it {problem}"
-                continue
-            options[p] = area.room(spec, predicted) if area is not None else 0.0
+            nominal = expected_displacement(spec, p, statistics[p], push_length)
+            for fraction in LEARNING_PUSH_FRACTIONS:
+                predicted = pose.apply_displacement(nominal * fraction)
+                problem = area.problem(spec, start, predicted) if area is not None else None
+                if problem is None:
+                    room = area.room(spec, predicted) if area is not None else 0.0
+                    options[p] = (push_length * fraction, room)
+                    break
+                if fraction == LEARNING_PUSH_FRACTIONS[0]:
+                    reasons[p] = f"from ({pose.x:.3f}, {pose.y:.3f}) it {problem}"
         learning = [p for p in pending if p in options]
         if learning:
-            primitive = min(learning, key=lambda p: (statistics[p].count, -options[p]))
+            primitive = min(learning, key=lambda p: (statistics[p].count, -options[p][1]))
         else:
             room_now = area.room(spec, pose) if area is not None else 0.0
-            better = [p for p in options if options[p] > room_now + REPOSITION_GAIN]
+            better = [p for p in options if options[p][1] > room_now + REPOSITION_GAIN]
             if not better:
                 return result(False)
-            primitive = max(better, key=lambda p: options[p])
+            primitive = max(better, key=lambda p: options[p][1])
+        length = options[primitive][0]
         try:
-            outcome = execute(spec.id, primitive, push_length)
+            outcome = execute(spec.id, primitive, length)
         except ExecutionFailed as failure:
             if not failure.blocked:
                 raise
             refused[primitive] = str(failure)   # until the object moves
             continue
         refused.clear()
-        statistics[primitive].update(outcome.displacement)
+        # A shorter trial counts at the nominal length, as the planner scales pushes linearly.
+        statistics[primitive].update(outcome.displacement * (push_length / length))
         pose = outcome.after
         trials += 1
         if on_trial is not None:
