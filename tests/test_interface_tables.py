@@ -42,8 +42,8 @@ def test_every_console_script_has_a_table():
 def test_check_fails_on_a_stale_table_and_a_rewrite_fixes_it(tmp_path):
     readme = tmp_path / "README.md"
     current = README.read_text()
-    row = "| `planning_budget_s` | double | 2 |"
-    stale = current.replace(row, row.replace("2", "3"))
+    row = next(line for line in current.splitlines() if line.startswith("| `planning_budget_s` |"))
+    stale = current.replace(row, row.replace("| double |", "| integer |"))
     assert stale != current
     readme.write_text(stale)
     result = run("--check", "--readme", str(readme))
