@@ -478,11 +478,13 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             outcome = environment.execute(step.object_id, step.primitive, step.push_length)
             report.pushes += 1
             spec = scenario.object(step.object_id)
+            # The tolerance comes from the model as the plan used it: folded in first, a bumped
+            # push widened its own tolerance until the bump passed as model noise.
+            tracker.pushed(step.object_id, store.get(step.object_id, step.primitive),
+                           step.push_length)
             update_model_with_push(store, spec.object_class, step.object_id, step.primitive,
                                    step.push_length, outcome)
             on_model_update()
-            tracker.pushed(step.object_id, store.get(step.object_id, step.primitive),
-                           step.push_length)
             observed = environment.observe()
             report.visited.append(observed)
             report.final_cost = float(problem.objective.cost(_state_of(problem, observed)))
