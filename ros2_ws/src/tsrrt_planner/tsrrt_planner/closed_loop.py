@@ -57,6 +57,8 @@ from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress
 
 # A repositioning push must gain at least this much room (m) to be worth a trial.
 REPOSITION_GAIN = 0.005
+# Room (m) a face out of the arm's reach costs: learning walks objects back into reach.
+UNREACHABLE_FACE_COST = 0.05
 # Where the nominal push does not fit, a learning trial may be this fraction of it.
 LEARNING_PUSH_FRACTIONS = (1.0, 0.6, 0.4)
 
@@ -161,11 +163,12 @@ class LearningArea:
         return float(min(low[0] - x_min, low[1] - y_min, x_max - high[0], y_max - high[1]))
 
     def room(self, spec: ObjectSpec, pose: Pose2D) -> float:
-        """How far, beyond the margins, the object at `pose` is from the edge and the others."""
+        """How far, beyond the margins, the object at `pose` is from the edge and the others,
+        less UNREACHABLE_FACE_COST per face the arm cannot push from there."""
         room = self.edge_distance(spec, pose) - self.edge_margin
         for other, other_pose in self.others:
             room = min(room, footprint_gap(spec, pose, other, other_pose) - self.clearance)
-        return room
+        return room - UNREACHABLE_FACE_COST * self.unreachable_faces(spec, pose)
 
     def problem(self, spec: ObjectSpec, start: Pose2D, after: Pose2D) -> str | None:
         """Why `spec` at `after` is not acceptable, or None; `start` is where learning began
