@@ -377,3 +377,31 @@ def test_task_loop_replans_when_the_pushed_object_itself_is_bumped() -> None:
     assert report.pushes >= 2
     assert any(d.reason == "outside the model's confidence" for d in report.divergences)
     assert report.replans >= 1
+
+
+class _RobotRefusingTheFirstPush(_SimulatedRobot):
+    """The executor refuses the first push before moving (UNREACHABLE from the observed pose)."""
+
+    def __init__(self, scenario, seed: int) -> None:
+        super().__init__(scenario, seed)
+        self.refused = 0
+
+    def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        if self.refused == 0:
+            self.refused += 1
+            raise ExecutionFailed(2, f"primitive {primitive} on {object_id!r}: out of reach",
+                                  blocked=True)
+        return super().execute(object_id, primitive, push_length)
+
+
+def test_task_loop_replans_when_a_push_is_refused() -> None:
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
+    robot = _RobotRefusingTheFirstPush(scenario, seed=100)
+    settings = TaskSettings(planning_budget_s=30.0, planning_max_nodes=300, max_pushes=2)
+    report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound.cost,
+                      target=bound.state)
+    assert robot.refused == 1 and report.replans >= 1
+    assert report.divergences[0].reason.startswith("push refused: primitive")
+    assert report.pushes == 2   # the task went on after the refusal

@@ -25,7 +25,8 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   (variances of independent pushes add), so an object has diverged when its position error exceeds
   `sigmas` times the accumulated standard deviation plus the perception floor, or its heading error
   (modulo symmetry) likewise. An object that the plan did not push but that moved beyond the floor
-  was disturbed. Either triggers a replan from the observed state.
+  was disturbed. Either triggers a replan from the observed state, as does a push the robot
+  refuses before moving (ExecutionFailed.blocked: from the observed pose it leaves the reach).
 """
 
 from __future__ import annotations
@@ -478,7 +479,23 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 report.stop_reason = "time budget"
                 return report
             on_event("executing", report)
-            outcome = environment.execute(step.object_id, step.primitive, step.push_length)
+            try:
+                outcome = environment.execute(step.object_id, step.primitive, step.push_length)
+            except ExecutionFailed as failure:
+                if not failure.blocked:
+                    raise
+                # Refused before anything moved: the object stands a few millimetres from where
+                # the plan put it, and from there the push leaves the arm's reach or meets
+                # another object. Plan afresh from what is observed.
+                report.divergences.append(Divergence(step.object_id, 0.0, 0.0,
+                                                     f"push refused: {failure}"))
+                report.replans += 1
+                if report.replans > settings.max_replans:
+                    report.stop_reason = "replan budget"
+                    return report
+                observed = environment.observe()
+                on_event("replanning", report)
+                break
             report.pushes += 1
             spec = scenario.object(step.object_id)
             # The tolerance comes from the model as the plan used it: folded in first, a bumped
