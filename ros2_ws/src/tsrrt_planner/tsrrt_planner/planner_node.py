@@ -9,6 +9,10 @@ Actions (one at a time: there is one arm):
 * /planner/run_task (RunTask): learn what is missing, plan, execute push by push, replan when the
   observation leaves what the models explain (closed_loop.run_task).
 
+An object the arm cannot push where it stands (problem.out_of_reach) is not learned: it is
+logged as UNREACHABLE, the task is planned around it where it stands, and a RunTask that
+succeeds says so in its error_msg.
+
 Observations come only from perception (/perception/get_settled_objects), never ground truth.
 Callbacks that wait on other servers run in a ReentrantCallbackGroup on a MultiThreadedExecutor
 and wait with timeouts, so a missing executor or perception node ends a goal with a clear error
@@ -17,6 +21,7 @@ instead of a hang.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -74,7 +79,7 @@ from tsrrt_planner.model_learning import (
     StoppingRule,
 )
 from tsrrt_planner.objectives import build_objective
-from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.problem import PlanningProblem, out_of_reach
 from tsrrt_planner.task_space_rrt import MODES, PlanResult
 
 # String parameters and their allowed values (numbers have ranges in their descriptors).
@@ -177,6 +182,7 @@ class PlannerNode(Node):
         self.store, self.store_problem = self._load_models()
         self.reachability = default_map()
         self._lower_bound: LowerBound | None = None
+        self.unreachable: set[str] = set()   # objects left where they stand: out of reach
         self._busy = threading.Lock()
         group = ReentrantCallbackGroup()
 
@@ -454,12 +460,20 @@ class PlannerNode(Node):
         environment = RosTaskEnvironment(self, [o.id for o in self.scenario.objects],
                                          cancelled)
         trials = 0
+        self.unreachable = set()
         for object_id in ids:
             spec = self.scenario.object(object_id)
             if not self._needs_learning(object_id, primitives_for(spec.shape), rule):
                 continue
             observed = environment.observe()
             pose = observed[object_id]
+            if out_of_reach(dataclasses.replace(spec, pose=pose), self.reachability,
+                            self.scenario.table.height):
+                self.unreachable.add(object_id)
+                self.get_logger().warning(
+                    f"UNREACHABLE: {object_id} at ({pose.x:.3f}, {pose.y:.3f}) is out of the "
+                    "arm's reach; not learned, the task is planned around it where it stands")
+                continue
             area = LearningArea(self.scenario.table, tuple(
                 [(o, observed[o.id]) for o in self.scenario.objects if o.id != object_id]
                 + [(o, o.pose) for o in self.scenario.obstacles]),
@@ -515,7 +529,8 @@ class PlannerNode(Node):
         while learning) is left out of planning, with a warning."""
         if self.store_problem is not None:
             raise GoalFailed(reason, f"the model file could not be read: {self.store_problem}")
-        objects = [(o.id, o.object_class, o.shape) for o in self.scenario.objects]
+        objects = [(o.id, o.object_class, o.shape) for o in self.scenario.objects
+                   if o.id not in self.unreachable]
         try:
             self.store.check_covers(objects, every_primitive=False)
         except ModelFileError as error:
@@ -600,6 +615,9 @@ class PlannerNode(Node):
             if report.stop_reason != "converged":
                 raise GoalFailed("BUDGET_EXHAUSTED",
                                  f"stopped by the {report.stop_reason} before converging")
+            if self.unreachable:
+                result.error_msg = (f"UNREACHABLE: {sorted(self.unreachable)} out of the arm's "
+                                    "reach, left where they stand")
 
         return self._run_exclusive(goal_handle, result, work)
 

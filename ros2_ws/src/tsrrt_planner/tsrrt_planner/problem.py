@@ -17,6 +17,9 @@ A push is valid when (all checked in `pushes_valid`, vectorised over candidates)
   use pushes the robot can do).
 Push geometry (contact point, direction, approach clearance) comes from the executor's
 tsrrt_executor.push_primitives so that planner and executor agree on it.
+
+An object that no push can reach where it stands (`out_of_reach`) needs no models: nothing
+can be planned with it, and it stays where it is, as an obstacle the objective still counts.
 """
 
 from __future__ import annotations
@@ -26,12 +29,14 @@ import math
 import numpy as np
 
 from tsrrt_common.robot_model import BALL_RADIUS
-from tsrrt_common.scenario import Scenario
+from tsrrt_common.scenario import ObjectSpec, Scenario
 from tsrrt_executor.push_primitives import (
     APPROACH_CLEARANCE,
     DEFAULT_PUSH_LENGTH,
+    ball_path_points,
     primitive_vector_in_object_frame,
     primitives_for,
+    push_geometry,
 )
 from tsrrt_executor.reachability import default_map
 from tsrrt_planner.collision import CollisionChecker
@@ -44,12 +49,26 @@ MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fi
 REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_reachable samples
 
 
+def out_of_reach(spec: ObjectSpec, reachability: Reachability,
+                 table_height: float = 0.0) -> bool:
+    """True when the arm reaches no push of the object at `spec.pose`: for every primitive some
+    ball position from the approach point to the end of the shortest push is unreachable (the
+    executor would answer UNREACHABLE to each)."""
+    for primitive in primitives_for(spec.shape):
+        geometry = push_geometry(spec.shape, spec.length, spec.width, spec.height, spec.pose,
+                                 primitive, MIN_PUSH_LENGTH, table_height=table_height)
+        if reachability.reachable(ball_path_points(geometry)).all():
+            return False
+    return True
+
+
 class PlanningProblem:
     """Everything a planner needs, as arrays in state order (n objects, 6 primitive slots).
 
     Args:
         scenario: table, objects, obstacles and objective.
-        models: forward models covering every object and its primitives.
+        models: forward models covering every object and its primitives (but objects out
+            of reach).
         reachability: arm reach model (default: the executor's IK grid, default_map()).
         margin: clearance kept between footprints, metres.
         max_substep: longest object travel between two collision-checked poses of a push.
@@ -69,7 +88,8 @@ class PlanningProblem:
                                         margin=margin)
         self.reachability = reachability if reachability is not None else default_map()
         self.max_substep = max_substep
-        models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects],
+        models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects
+                             if not out_of_reach(o, self.reachability, scenario.table.height)],
                             every_primitive=False)
         shapes = [o.shape for o in scenario.objects]
         self.rates, self.available = models.rate_table(self.objects.ids, shapes)
