@@ -425,8 +425,16 @@ class ExecutorNode(Node):
         result.tool_rms_error = controller_result.tool_rms_error
         result.tool_max_error = controller_result.tool_max_error
         if controller_result.error_code != FollowJointTrajectory.Result.SUCCESSFUL:
-            raise GoalFailed(Result.TRACKING_FAILED, f"controller: error "
-                             f"{controller_result.error_code} {controller_result.error_string}")
+            problem = (f"controller: error {controller_result.error_code} "
+                       f"{controller_result.error_string}")
+            # The arm stopped where the controller gave up, maybe in contact and in the
+            # camera's view: take it back out so the caller can observe and carry on.
+            try:
+                self._return_to_observe(goal_handle, self._fresh_joint_positions(),
+                                        plan.geometry.safe_z, settings)
+            except GoalFailed as failure:
+                problem += f"; then moving the arm out of view failed: {failure}"
+            raise GoalFailed(Result.TRACKING_FAILED, problem)
         if controller_result.tool_max_error > self._value("max_tool_error"):
             raise GoalFailed(Result.TRACKING_FAILED, f"tool error "
                              f"{controller_result.tool_max_error * 1000:.1f} mm exceeds "

@@ -380,17 +380,19 @@ def test_task_loop_replans_when_the_pushed_object_itself_is_bumped() -> None:
 
 
 class _RobotRefusingTheFirstPush(_SimulatedRobot):
-    """The executor refuses the first push before moving (UNREACHABLE from the observed pose)."""
+    """The executor refuses the first push before moving (UNREACHABLE from the observed pose),
+    or with `failure` fails it another way."""
 
-    def __init__(self, scenario, seed: int) -> None:
+    def __init__(self, scenario, seed: int, failure: ExecutionFailed | None = None) -> None:
         super().__init__(scenario, seed)
         self.refused = 0
+        self.failure = failure
 
     def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
         if self.refused == 0:
             self.refused += 1
-            raise ExecutionFailed(2, f"primitive {primitive} on {object_id!r}: out of reach",
-                                  blocked=True)
+            raise self.failure or ExecutionFailed(
+                2, f"primitive {primitive} on {object_id!r}: out of reach", blocked=True)
         return super().execute(object_id, primitive, push_length)
 
 
@@ -405,3 +407,19 @@ def test_task_loop_replans_when_a_push_is_refused() -> None:
     assert robot.refused == 1 and report.replans >= 1
     assert report.divergences[0].reason.startswith("push refused: primitive")
     assert report.pushes == 2   # the task went on after the refusal
+
+
+def test_task_loop_replans_after_a_push_stopped_part_way_and_stops_on_a_lost_object() -> None:
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
+    settings = TaskSettings(planning_budget_s=30.0, planning_max_nodes=300, max_pushes=2)
+    tracking = ExecutionFailed(4, "tool error 12.1 mm exceeds max_tool_error", recoverable=True)
+    robot = _RobotRefusingTheFirstPush(scenario, seed=100, failure=tracking)
+    report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound.cost,
+                      target=bound.state)
+    assert report.replans >= 1 and report.pushes == 2
+    lost = ExecutionFailed(5, "'plate_1' is lost or missing in the settled observation")
+    with pytest.raises(ExecutionFailed, match="lost"):
+        run_task(scenario, store, _RobotRefusingTheFirstPush(scenario, seed=100, failure=lost),
+                 AnnulusReachability(), settings, bound.cost, target=bound.state)

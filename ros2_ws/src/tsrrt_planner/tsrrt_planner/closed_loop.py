@@ -71,9 +71,13 @@ class ExecutionFailed(PlannerError):
     runs into another object): nothing changed, and the same push may work from another pose.
     """
 
-    def __init__(self, code: int, message: str, blocked: bool = False) -> None:
+    def __init__(self, code: int, message: str, blocked: bool = False,
+                 recoverable: bool = False) -> None:
         self.code = code
         self.blocked = blocked
+        # The robot is back out of the way and the scene consistent (e.g. the ball met more
+        # resistance than planned): observe and plan again rather than give up.
+        self.recoverable = recoverable or blocked
         super().__init__(message)
 
 
@@ -482,11 +486,11 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             try:
                 outcome = environment.execute(step.object_id, step.primitive, step.push_length)
             except ExecutionFailed as failure:
-                if not failure.blocked:
+                if not failure.recoverable:
                     raise
-                # Refused before anything moved: the object stands a few millimetres from where
+                # Refused before anything moved (the object stands a few millimetres from where
                 # the plan put it, and from there the push leaves the arm's reach or meets
-                # another object. Plan afresh from what is observed.
+                # another object), or stopped part-way: plan afresh from what is observed.
                 report.divergences.append(Divergence(step.object_id, 0.0, 0.0,
                                                      f"push refused: {failure}"))
                 report.replans += 1

@@ -160,8 +160,11 @@ class RosTaskEnvironment:
     def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
         result = self.node.execute_primitive(object_id, primitive, push_length, self.cancelled)
         if result.error_code != ExecutePrimitive.Result.SUCCESS:
-            blocked = result.error_code == ExecutePrimitive.Result.UNREACHABLE
-            raise ExecutionFailed(result.error_code, result.error_msg, blocked)
+            codes = ExecutePrimitive.Result
+            # Refused before moving, or stopped part-way with the arm taken back out of view.
+            blocked = result.error_code in (codes.UNREACHABLE, codes.IK_FAILED)
+            recoverable = result.error_code == codes.TRACKING_FAILED
+            raise ExecutionFailed(result.error_code, result.error_msg, blocked, recoverable)
         before, after = result.before, result.after
         self.last_push_seen = after.last_seen
         return PushOutcome(Pose2D(before.x, before.y, before.theta),
@@ -221,7 +224,7 @@ class PlannerNode(Node):
             read_only=True))
         declare("planner", "tsrrt", ParameterDescriptor(
             description=f"default planner: one of {list(MODES)}"))
-        declare("planning_budget_s", 2.0, _float(0.05, 600.0, "time per (re)plan, s"))
+        declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
         declare("max_pushes", 80, _integer(1, 10000, "pushes a RunTask may execute"))
         declare("time_budget_s", 900.0, _float(1.0, 86400.0, "wall time a RunTask may take"))
@@ -237,7 +240,7 @@ class PlannerNode(Node):
                                                  "confidence rule: half-width, rad"))
         declare("learning_edge_margin", 0.005, _float(0.0, 0.2,
                 "closest a learning push may bring an object to the table edge, m"))
-        declare("learning_clearance", 0.03, _float(0.0, 0.2,
+        declare("learning_clearance", 0.01, _float(0.0, 0.2,
                 "closest a learning push may bring an object to another one, m"))
         declare("lower_bound_starts", 12, _integer(1, 1000, "multi-starts of the lower bound"))
         declare("server_timeout_s", 5.0, _float(0.1, 600.0,
@@ -478,7 +481,7 @@ class PlannerNode(Node):
                 [(o, observed[o.id]) for o in self.scenario.objects if o.id != object_id]
                 + [(o, o.pose) for o in self.scenario.obstacles]),
                 edge_margin=self._param("learning_edge_margin"),
-                clearance=self._param("learning_clearance"))
+                clearance=self._param("learning_clearance"), reach=self.reachability)
             self.get_logger().info(f"learning push models of {object_id}")
             done_before = trials
             prior = {p: DisplacementStats(m.count, m.mean.copy(), m.m2.copy())
