@@ -191,3 +191,29 @@ def test_a_primitive_without_a_model_is_unavailable_not_an_error(store):
     assert available.tolist() == [[True, True, False, True, False, False],
                                   [True, True, True, True, False, False]]
     assert not rates[0, 2].any()
+
+
+def test_a_primitive_never_tried_borrows_a_class_mates_model(store):
+    """plate_1 has no model of primitive 3 and plate_9 none at all: both plan with the plate
+    that has the most trials of it; a single own trial does not yet replace that."""
+    partial = ModelStore([m for (o, p), m in store.models.items() if (o, p) != ("plate_1", 3)],
+                         store.classes)
+    objects = [("plate_1", "plate", "cylinder"), ("plate_9", "plate", "cylinder")]
+    with pytest.raises(ModelFileError, match="plate_9: no models"):
+        partial.check_covers(objects, every_primitive=False)
+    partial.check_covers(objects, borrow=True)
+    best = partial.borrowed("plate", 3)
+    assert best.count == max(m.count for (o, p), m in partial.models.items()
+                             if p == 3 and partial.classes[o] == "plate")
+    assert partial.model_for("plate_1", "plate", 3) is best
+    assert partial.model_for("plate_9", "plate", 3) is best
+    assert partial.model_for("mug_1", "mug", 3) is None       # no mug learned anything
+    rates, available = partial.rate_table(["plate_1", "plate_9"], ["cylinder", "cylinder"],
+                                          ["plate", "plate"])
+    assert available[:, :4].all()
+    np.testing.assert_allclose(rates[1, 2], best.mean / best.push_length)
+    partial.add(ForwardModel("plate_9", 3, 0.05, 1, np.array([0.0, 0.03, 0.0]), np.zeros(3)),
+                "plate")
+    assert partial.model_for("plate_9", "plate", 3) is best
+    with pytest.raises(ModelFileError, match="none of a 'mug'"):
+        partial.check_covers([("mug_1", "mug", "cylinder")], borrow=True)

@@ -302,10 +302,15 @@ def update_model_with_push(store: ModelStore, object_class: str, object_id: str,
     """Fold an executed plan push into its model (Eq. 9), rescaled to the nominal push length.
 
     The planner scales displacement linearly with push length, so a push of another length is
-    brought to the model's nominal length before it is averaged in.
+    brought to the model's nominal length before it is averaged in. A push planned with a
+    class-mate's model starts the object's own model.
     """
-    model = store.get(object_id, primitive)
-    statistics = DisplacementStats(model.count, model.mean.copy(), model.m2.copy())
+    model = store.models.get((object_id, primitive)) or store.model_for(object_id, object_class,
+                                                                        primitive)
+    if model is None:
+        raise PlannerError(f"no model of {object_id!r} or its class for primitive {primitive}")
+    statistics = (DisplacementStats(model.count, model.mean.copy(), model.m2.copy())
+                  if model.object_id == object_id else DisplacementStats())
     statistics.update(outcome.displacement * (model.push_length / push_length))
     store.add(ForwardModel.from_stats(object_id, primitive, model.push_length, statistics),
               object_class)
@@ -504,8 +509,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             spec = scenario.object(step.object_id)
             # The tolerance comes from the model as the plan used it: folded in first, a bumped
             # push widened its own tolerance until the bump passed as model noise.
-            tracker.pushed(step.object_id, store.get(step.object_id, step.primitive),
-                           step.push_length)
+            tracker.pushed(step.object_id, store.model_for(step.object_id, spec.object_class,
+                                                           step.primitive), step.push_length)
             update_model_with_push(store, spec.object_class, step.object_id, step.primitive,
                                    step.push_length, outcome)
             on_model_update()

@@ -251,41 +251,71 @@ class ModelStore:
             raise ModelError(f"no forward model for object {object_id!r}, primitive "
                              f"{primitive}; known objects: {sorted(self.classes)}") from None
 
+    def borrowed(self, object_class: str, primitive: int) -> ForwardModel | None:
+        """The model of `primitive` with the most trials among the objects of `object_class`."""
+        candidates = [m for (o, p), m in self.models.items()
+                      if p == primitive and self.classes.get(o) == object_class]
+        return max(candidates, key=lambda m: m.count, default=None)
+
+    def model_for(self, object_id: str, object_class: str, primitive: int
+                  ) -> ForwardModel | None:
+        """The model to plan with: the object's own once it has two trials, else that of the
+        class-mate with the most trials (objects of a class differ little in mass and friction;
+        a primitive the robot could not try on this object, blocked while learning, is still
+        worth planning with), else its own single trial, else None."""
+        own = self.models.get((object_id, primitive))
+        if own is not None and own.count >= 2:
+            return own
+        if self.classes.get(object_id, object_class) == object_class:
+            mate = self.borrowed(object_class, primitive)
+            if mate is not None and mate.count >= 2:
+                return mate
+        return own
+
     def check_covers(self, objects: Sequence[tuple[str, str, str]],
-                     every_primitive: bool = True) -> None:
+                     every_primitive: bool = True, borrow: bool = False) -> None:
         """Raise ModelFileError unless every (id, class, shape) has models learned for the same
         class: of each primitive of its shape, or with every_primitive=False of at least one
         (a primitive the robot could not try, e.g. blocked while learning, is then simply not
-        available to the planner)."""
+        available to the planner). With borrow=True a class-mate's model counts (model_for)."""
         problems = []
         for object_id, object_class, shape in objects:
             stored_class = self.classes.get(object_id)
-            if stored_class is None:
-                problems.append(f"{object_id}: no models")
-                continue
-            if stored_class != object_class:
+            if stored_class is not None and stored_class != object_class:
                 problems.append(f"{object_id}: models are for class {stored_class!r}, the "
                                 f"object is a {object_class!r}")
-            missing = [p for p in primitives_for(shape) if (object_id, p) not in self.models]
+                continue
+            if borrow:
+                missing = [p for p in primitives_for(shape)
+                           if self.model_for(object_id, object_class, p) is None]
+            elif stored_class is None:
+                problems.append(f"{object_id}: no models")
+                continue
+            else:
+                missing = [p for p in primitives_for(shape) if (object_id, p) not in self.models]
+            if borrow and len(missing) == len(primitives_for(shape)):
+                problems.append(f"{object_id}: no models, and none of a {object_class!r}")
+                continue
             if missing and (every_primitive or len(missing) == len(primitives_for(shape))):
                 problems.append(f"{object_id}: no model for primitives {missing}")
         if problems:
             raise ModelFileError("forward models do not match the objects: " + "; ".join(problems))
 
-    def rate_table(self, object_ids: Sequence[str], shapes: Sequence[str]
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def rate_table(self, object_ids: Sequence[str], shapes: Sequence[str],
+                   classes: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Displacement per metre of push (n, 6, 3) and availability (n, 6) for the planner.
 
         Primitive p is column p - 1; primitives a shape does not have, or that have no model,
-        are unavailable.
+        are unavailable. Given the objects' classes, models are chosen by model_for.
         """
         rates = np.zeros((len(object_ids), 6, 3))
         available = np.zeros((len(object_ids), 6), bool)
         for i, (object_id, shape) in enumerate(zip(object_ids, shapes, strict=True)):
             for p in primitives_for(shape):
-                if (object_id, p) not in self.models:
+                model = (self.models.get((object_id, p)) if classes is None
+                         else self.model_for(object_id, classes[i], p))
+                if model is None:
                     continue
-                model = self.models[(object_id, p)]
                 rates[i, p - 1] = model.mean / model.push_length
                 available[i, p - 1] = True
         return rates, available

@@ -535,11 +535,11 @@ class PlannerNode(Node):
         objects = [(o.id, o.object_class, o.shape) for o in self.scenario.objects
                    if o.id not in self.unreachable]
         try:
-            self.store.check_covers(objects, every_primitive=False)
+            self.store.check_covers(objects, every_primitive=False, borrow=True)
         except ModelFileError as error:
             raise GoalFailed(reason, str(error)) from None
         try:
-            self.store.check_covers(objects)
+            self.store.check_covers(objects, borrow=True)
         except ModelFileError as error:
             self.get_logger().warning(f"planning without some primitives: {error}")
 

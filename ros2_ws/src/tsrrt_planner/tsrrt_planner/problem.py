@@ -90,9 +90,10 @@ class PlanningProblem:
         self.max_substep = max_substep
         models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects
                              if not out_of_reach(o, self.reachability, scenario.table.height)],
-                            every_primitive=False)
+                            every_primitive=False, borrow=True)
         shapes = [o.shape for o in scenario.objects]
-        self.rates, self.available = models.rate_table(self.objects.ids, shapes)
+        self.rates, self.available = models.rate_table(
+            self.objects.ids, shapes, [o.object_class for o in scenario.objects])
         self.contact = np.zeros((self.n, 6, 2))
         self.direction = np.zeros((self.n, 6, 2))
         for i, spec in enumerate(scenario.objects):
