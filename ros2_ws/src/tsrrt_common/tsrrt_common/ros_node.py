@@ -13,6 +13,7 @@ import rclpy
 import rclpy.action
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 
 from tsrrt_common.errors import TsrrtError
@@ -69,7 +70,7 @@ def run_node(make_node: Callable[[], Node], name: str, threads: int,
     except (TsrrtError, ParameterException) as error:
         rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")
         refused = True
-    except rclpy.exceptions.RCLError:
+    except rclpy_implementation.RCLError:
         if rclpy.ok():
             raise
     finally:

@@ -133,6 +133,9 @@ def wait_for_future(future: rclpy.task.Future, timeout_s: float,
     return True
 
 
+OBSERVE_ATTEMPTS = 3   # settled observations an object may be missing from before the task stops
+
+
 class RosTaskEnvironment:
     """closed_loop.TaskEnvironment over perception's settled observations and the executor."""
 
@@ -146,16 +149,22 @@ class RosTaskEnvironment:
         self.last_push_seen: TimeMessage | None = None
 
     def observe(self) -> dict[str, Pose2D]:
-        states = self.node.settled_objects(self.last_push_seen)
-        self.last_push_seen = None
-        self.node.publish_observation(states)
-        poses = {s.id: Pose2D(s.x, s.y, s.theta) for s in states
-                 if s.status != ObjectState.STATUS_LOST}
-        missing = [i for i in self.object_ids if i not in poses]
-        if missing:
-            raise GoalFailed("NO_OBSERVATION",
-                             f"perception does not see {missing}")
-        return poses
+        """Poses of every object in a settled observation; an object missing from one is asked
+        for again in fresh frames (perception re-acquires a lost track when it sees the object)."""
+        for attempt in range(OBSERVE_ATTEMPTS):
+            states = self.node.settled_objects(self.last_push_seen)
+            self.last_push_seen = None
+            self.node.publish_observation(states)
+            poses = {s.id: Pose2D(s.x, s.y, s.theta) for s in states
+                     if s.status != ObjectState.STATUS_LOST}
+            missing = [i for i in self.object_ids if i not in poses]
+            if not missing:
+                return poses
+            self.node.get_logger().warning(
+                f"perception does not see {missing} (observation {attempt + 1} of "
+                f"{OBSERVE_ATTEMPTS})")
+        raise GoalFailed("NO_OBSERVATION", f"perception does not see {missing} in "
+                                           f"{OBSERVE_ATTEMPTS} settled observations")
 
     def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
         result = self.node.execute_primitive(object_id, primitive, push_length, self.cancelled)
