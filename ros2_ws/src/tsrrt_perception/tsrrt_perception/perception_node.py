@@ -8,6 +8,7 @@ wall-clock rate even when frames come slower, with statuses aged accordingly.
 
 from __future__ import annotations
 
+import ctypes
 import threading
 import time
 from dataclasses import dataclass
@@ -351,7 +352,27 @@ class PerceptionNode(Node):
         return markers
 
 
+# glibc's mallopt(M_MMAP_THRESHOLD): allocations from this size on are mmapped, and unmapped
+# when freed.
+M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES = -3, 128 * 1024
+
+
+def pin_mmap_threshold() -> None:
+    """Keep camera frames (0.9-1.2 MB each, 20 a second) out of the heap's arenas.
+
+    glibc raises its mmap threshold to the size of each mmapped block freed, so after the first
+    frames every frame buffer came from the per-thread arenas, which fragment: the node's RSS
+    grew about 0.35 MB/s with frames flowing, 12.6 % over the soak test's 18 tasks. A fixed
+    threshold turns this off. No-op where the C library is not glibc.
+    """
+    try:
+        ctypes.CDLL("libc.so.6").mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    except (OSError, AttributeError):
+        pass
+
+
 def main(args: list[str] | None = None) -> None:
+    pin_mmap_threshold()
     run_node(PerceptionNode, "perception_node", threads=3, args=args)
 
 
