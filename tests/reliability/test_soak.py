@@ -1,0 +1,106 @@
+"""Load (issue 7): 20 consecutive tasks in one graph, then the nodes stopped by SIGINT and, in a
+second graph, by SIGTERM.
+
+Before each task the simulator loads tests/data/two_boxes_one_push.yaml (two_boxes with a push
+or two left), so every RunTask has work to do and ends converged in a few seconds; perception
+and the planner run on two_boxes.yaml, as in the other graph tests. Each node's resident memory
+(its child processes included: the sim's renderer) must grow by less than 10 % from task 2 to
+task 20 (task 1 warms caches up), and neither its threads nor its child processes may pile up.
+Figures are printed for docs/reliability.md ("Load"); run with -s to see them.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import pytest
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+rclpy = pytest.importorskip("rclpy")
+psutil = pytest.importorskip("psutil")
+from action_msgs.msg import GoalStatus  # noqa: E402
+from task_graph import DATA, TaskGraph, describe  # noqa: E402
+
+from tsrrt_interfaces.action import RunTask  # noqa: E402
+
+TASKS = 20
+BASELINE_TASK = 2
+MAX_RSS_GROWTH = 0.10
+# Thread pools (rclpy's executors, the planner's) may start a worker late; a leak of one per
+# task would add 18 between task 2 and task 20.
+THREAD_SLACK = 4
+ONE_PUSH = DATA / "two_boxes_one_push.yaml"
+NODES = ("sim_node", "perception_node", "executor_node", "planner_node")
+
+
+def footprint(pid: int) -> dict[str, int]:
+    """Resident memory (bytes) of a process and its descendants, its threads and children."""
+    process = psutil.Process(pid)
+    children = process.children(recursive=True)
+    return {"rss": sum(p.memory_info().rss for p in [process, *children]),
+            "threads": process.num_threads(), "children": len(children),
+            "pids": [pid, *[c.pid for c in children]]}
+
+
+def assert_stops_cleanly(graph: TaskGraph, sig: int) -> None:
+    """Every node exits with 0 on `sig`, logs no traceback and leaves no process behind."""
+    pids = [pid for name in NODES for pid in footprint(graph.processes[name].popen.pid)["pids"]]
+    for name in NODES:
+        process = graph.processes[name]
+        code = process.stop(sig)
+        assert code == 0, f"{name} exited with {code} on {signal.Signals(sig).name}:\n" \
+                          f"{process.log()[-3000:]}"
+        assert "Traceback" not in process.log(), process.log()
+    deadline = time.monotonic() + 10.0
+    while any(psutil.pid_exists(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = [pid for pid in pids if psutil.pid_exists(pid)
+            and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE]
+    assert not left, f"processes left behind: {left}"
+
+
+@pytest.fixture(scope="module")
+def graph(launch, graph_probe, tmp_path_factory) -> TaskGraph:
+    return TaskGraph(launch, graph_probe, tmp_path_factory.mktemp("soak")).start()
+
+
+def test_twenty_tasks_without_growth_then_sigint(graph: TaskGraph):
+    samples: dict[int, dict[str, dict]] = {}
+    durations = []
+    for task in range(1, TASKS + 1):
+        graph.reset(ONE_PUSH)
+        start_cost = graph.true_cost()
+        began = time.monotonic()
+        status, result = graph.run_task(RunTask.Goal(planning_budget_s=0.5))
+        durations.append(time.monotonic() - began)
+        final_cost = graph.true_cost()
+        summary = (f"task {task}: {describe(result)}; true cost {start_cost:.4f} -> "
+                   f"{final_cost:.4f}")
+        assert status == GoalStatus.STATUS_SUCCEEDED, f"{summary}\n{graph.logs()}"
+        assert result.pushes >= 1 and final_cost < start_cost, summary
+        samples[task] = {name: footprint(graph.processes[name].popen.pid) for name in NODES}
+    first, last = samples[BASELINE_TASK], samples[TASKS]
+    figures = {name: {"rss_mb": (round(first[name]["rss"] / 2**20, 1),
+                                 round(last[name]["rss"] / 2**20, 1)),
+                      "growth": round(last[name]["rss"] / first[name]["rss"] - 1.0, 3),
+                      "threads": (first[name]["threads"], last[name]["threads"]),
+                      "children": (first[name]["children"], last[name]["children"])}
+               for name in NODES}
+    series = {name: [round(samples[t][name]["rss"] / 2**20) for t in samples] for name in NODES}
+    print(f"\nFIGURES task wall s: median {sorted(durations)[TASKS // 2]:.1f}, "
+          f"max {max(durations):.1f}, total {sum(durations):.0f}; per node {figures}; "
+          f"RSS MB after each task {series}")
+    for name in NODES:
+        growth = last[name]["rss"] / first[name]["rss"] - 1.0
+        assert growth < MAX_RSS_GROWTH, f"{name}: RSS grew {growth:.1%} ({figures[name]})"
+        assert last[name]["threads"] <= first[name]["threads"] + THREAD_SLACK, figures[name]
+        assert last[name]["children"] == first[name]["children"], figures[name]
+    assert_stops_cleanly(graph, signal.SIGINT)
+
+
+def test_a_fresh_graph_stops_cleanly_on_sigterm(graph: TaskGraph):
+    graph.launch.stop_all()     # left running only if the test above failed early
+    graph.start()               # waits until every node serves its actions and services
+    assert_stops_cleanly(graph, signal.SIGTERM)
