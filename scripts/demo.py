@@ -48,6 +48,7 @@ from tsrrt_planner.report_figures import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
+ZERO_OPTIMUM = 1e-6   # |lower bound| below which no relative gap is reported
 ERROR_NAMES = {value: name for name, value in vars(RunTask.Result).items()
                if name.isupper() and isinstance(value, int)}
 
@@ -258,7 +259,9 @@ def _report(scenario: Scenario, objective: Objective, result: RunTask.Result,
     perceived = {s.id: Pose2D(s.x, s.y, s.theta) for s in result.final_objects}
     final_cost_true = float(objective.cost(_state(scenario, true_final)))
     bound = float(result.lower_bound)
-    gap = (final_cost_true - bound) / abs(bound) if bound and math.isfinite(bound) else None
+    # A relative gap means nothing against a zero optimum (obstacle: the goal point itself).
+    gap = ((final_cost_true - bound) / abs(bound)
+           if math.isfinite(bound) and abs(bound) > ZERO_OPTIMUM else None)
     return {
         "scenario": scenario.name,
         "success": result.error_code == RunTask.Result.SUCCESS,
