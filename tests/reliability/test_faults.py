@@ -194,8 +194,11 @@ def test_perception_restart_recovers_the_same_ids_at_the_same_poses(graph: TaskG
     graph.reset()
     graph.disturb("eraser", 0.05, -0.02, 0.3)
     graph.disturb("remote", 0.03, -0.04, -0.2)
+    graph.fresh_truth()
+    graph.fresh_truth()         # rendered after the bumps, not while they were applied
     before, truth = graph.wait_until_perceived()
     assert_same_poses(before, truth, "before the restart")
+    assert abs(truth["eraser"][0] - 0.49) < POSE_TOLERANCE, "the bump has not shown yet"
     assert graph.processes["perception_node"].stop(signal.SIGTERM) == 0
     began = time.monotonic()
     graph.start_perception()
