@@ -390,6 +390,9 @@ class TaskSettings:
     convergence: float = 0.01         # relative predicted improvement below which we stop
     seed: int = 0
     max_replans: int = 20
+    # Clearance (m) plans keep between objects: pushes land within a few millimetres, and a plan
+    # that leaves less than that makes its objects touch and push each other.
+    margin: float = 0.005
 
 
 @dataclass
@@ -426,7 +429,8 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
               progress: Progress | None = None, max_nodes: int | None = None
               ) -> tuple[PlanningProblem, PlanResult]:
     """TASK_SPACE_RRT from the observed state with the current models."""
-    problem = PlanningProblem(scenario_at(scenario, poses), store, reachability)
+    problem = PlanningProblem(scenario_at(scenario, poses), store, reachability,
+                              margin=settings.margin)
     result = TASK_SPACE_RRT(problem, settings.planner, settings.seed,
                             time_budget_s=settings.planning_budget_s,
                             max_nodes=max_nodes or settings.planning_max_nodes,

@@ -234,6 +234,8 @@ class PlannerNode(Node):
         declare("planner", "tsrrt", ParameterDescriptor(
             description=f"default planner: one of {list(MODES)}"))
         declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
+        declare("planning_margin", 0.012, _float(0.0, 0.1,
+                "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
         declare("max_pushes", 80, _integer(1, 10000, "pushes a RunTask may execute"))
         declare("time_budget_s", 900.0, _float(1.0, 86400.0, "wall time a RunTask may take"))
@@ -534,7 +536,8 @@ class PlannerNode(Node):
             max_pushes=max_pushes or self._param("max_pushes"),
             time_budget_s=time_budget_s or self._param("time_budget_s"),
             convergence=self._param("convergence"),
-            seed=seed if seed >= 0 else self._param("planner_seed"))
+            seed=seed if seed >= 0 else self._param("planner_seed"),
+            margin=self._param("planning_margin"))
 
     def _check_models(self, reason: str) -> None:
         """Every object needs models; a primitive without one (never tried: it was blocked
@@ -585,7 +588,7 @@ class PlannerNode(Node):
     def _problem_at(self, observed: dict[str, Pose2D], reason: str) -> PlanningProblem:
         try:
             return PlanningProblem(scenario_at(self.scenario, observed), self.store,
-                                   self.reachability)
+                                   self.reachability, margin=self._param("planning_margin"))
         except PlannerError as error:
             raise GoalFailed(reason, str(error)) from None
 
