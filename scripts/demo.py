@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -34,6 +33,7 @@ from sensor_msgs.msg import Image
 
 from tsrrt_common.camera import OverheadCamera
 from tsrrt_common.geometry import Pose2D
+from tsrrt_common.processes import stop_process_group
 from tsrrt_common.ros_node import ActionClient
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_interfaces.action import RunTask
@@ -151,13 +151,7 @@ def bag_summary(bag: Path) -> str:
 def stop_graph(process: subprocess.Popen) -> None:
     """SIGTERM to the process group (bringup.sh stops its nodes, the recorder closes its bag),
     SIGKILL after 20 s."""
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGTERM)
-        try:
-            process.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
+    stop_process_group(process, signal.SIGTERM, grace_s=20.0)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -21,6 +21,8 @@ from typing import Any
 
 import pytest
 
+from tsrrt_common.processes import stop_process_group
+
 try:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -54,14 +56,7 @@ class NodeProcess:
 
     def stop(self, sig: int = signal.SIGINT) -> int:
         """Signal the process group, wait, escalate to SIGKILL; returns the exit code."""
-        if self.popen.poll() is None:
-            os.killpg(self.popen.pid, sig)
-            try:
-                self.popen.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.popen.pid, signal.SIGKILL)
-                self.popen.wait(timeout=10)
-        return self.popen.returncode
+        return stop_process_group(self.popen, sig)
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")

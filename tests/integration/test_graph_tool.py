@@ -6,7 +6,6 @@ localhost discovery only) and is killed at teardown.
 
 from __future__ import annotations
 
-import os
 import re
 import signal
 import subprocess
@@ -18,6 +17,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tsrrt_common.processes import stop_process_group
+
 pytestmark = pytest.mark.integration
 
 pytest.importorskip("rclpy")
@@ -28,16 +29,6 @@ GRAPH = ROOT / "scripts/graph.py"
 TEST_NODE = Path(__file__).with_name("graph_tool_node.py")
 CHATTER_RATE_HZ = 20.0
 LISTINGS = ("nodes", "topics", "services", "actions")
-
-
-def _stop(process: subprocess.Popen) -> None:
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait(timeout=10)
 
 
 def graph(env: dict[str, str], *args: str) -> subprocess.CompletedProcess:
@@ -62,7 +53,7 @@ def test_node(ros_env, tmp_path_factory) -> Iterator[subprocess.Popen]:
             assert time.monotonic() < deadline, "the test node never appeared in the graph"
         yield process
     finally:
-        _stop(process)
+        stop_process_group(process, grace_s=10.0)
 
 
 @pytest.fixture

@@ -62,6 +62,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from tsrrt_common.geometry import Pose2D, wrap_angle
+from tsrrt_common.processes import stop_process_group
 from tsrrt_common.scenario import ObjectSpec, Scenario, load_scenario
 from tsrrt_executor.errors import ExecutorError
 from tsrrt_executor.inverse_kinematics import PusherIK
@@ -277,13 +278,7 @@ class GraphSession:
         if self.context is not None:
             rclpy.shutdown(context=self.context)
         for process in reversed(self.processes):
-            if process.poll() is None:
-                os.killpg(process.pid, signal.SIGINT)
-                try:
-                    process.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    os.killpg(process.pid, signal.SIGKILL)
-                    process.wait(timeout=10)
+            stop_process_group(process)
 
     def _on_perceived(self, message) -> None:
         self.perceived[:] = [message]
