@@ -41,8 +41,14 @@ from typing import Protocol
 import numpy as np
 
 from tsrrt_common.geometry import Pose2D, angle_difference_modulo_symmetry, footprint_polygon
+from tsrrt_common.robot_model import BALL_RADIUS
 from tsrrt_common.scenario import ObjectSpec, Scenario, Table
-from tsrrt_executor.push_primitives import DEFAULT_PUSH_LENGTH, primitives_for
+from tsrrt_executor.push_primitives import (
+    APPROACH_CLEARANCE,
+    BACK_OFF,
+    DEFAULT_PUSH_LENGTH,
+    primitives_for,
+)
 from tsrrt_planner.collision import box_box_signed_distance, box_disc_signed_distance
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import (
@@ -154,7 +160,7 @@ class LearningArea:
         comes down) the arm cannot reach."""
         if self.reach is None:
             return 0
-        offset = 0.03   # ball radius, approach clearance and back-off, rounded up
+        offset = BALL_RADIUS + APPROACH_CLEARANCE + BACK_OFF   # ball centre where it lands
         half_length, half_width = spec.length / 2.0 + offset, spec.width / 2.0 + offset
         points = pose.transform_point_to_world(np.array([
             [half_length, 0.0], [-half_length, 0.0], [0.0, half_width], [0.0, -half_width]]))
