@@ -611,6 +611,12 @@ class PlannerNode(Node):
             bound = self._bound(self._problem_at(environment.observe(), "PLANNING_FAILED"))
 
             def on_event(phase: str, report: TaskReport) -> None:
+                if phase == "replanning" and report.divergences:
+                    why = report.divergences[-1]
+                    self.get_logger().info(
+                        f"replanning after push {report.pushes}: {why.object_id} {why.reason} "
+                        f"(position off by {why.position_error * 1000:.1f} mm, heading by "
+                        f"{math.degrees(why.angle_error):.1f} deg)")
                 goal_handle.publish_feedback(RunTask.Feedback(
                     phase=phase, pushes_done=report.pushes, pushes_planned=report.planned,
                     current_cost=report.final_cost,
@@ -618,7 +624,7 @@ class PlannerNode(Node):
 
             report = run_task(self.scenario, self.store, environment, self.reachability,
                               settings, bound.cost, bound.state, on_event, cancelled,
-                              on_model_update=self._save_models, on_plan=self._publish_plan)
+                              on_model_update=self._save_models, on_plan=self._log_plan)
             result.final_cost, result.predicted_cost = report.final_cost, report.predicted_cost
             result.lower_bound, result.pushes = bound.cost, report.pushes
             result.replans, result.planning_s = report.replans, report.planning_s
@@ -637,6 +643,13 @@ class PlannerNode(Node):
         return self._run_exclusive(goal_handle, result, work)
 
     # ------------------------------------------------------------------ plan output
+    def _log_plan(self, plan: PlanResult) -> None:
+        """Publish a RunTask (re)plan and say in the log what it promises."""
+        self._publish_plan(plan)
+        self.get_logger().info(
+            f"plan: {len(plan.steps)} pushes, cost {plan.costs[0]:.4f} -> {plan.best_cost:.4f} "
+            f"predicted, {plan.nodes} nodes in {plan.elapsed_s:.1f} s")
+
     def _publish_plan(self, plan: PlanResult) -> Plan:
         message = Plan()
         message.header.stamp = self.get_clock().now().to_msg()
