@@ -25,10 +25,7 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   (variances of independent pushes add), so an object has diverged when its position error exceeds
   `sigmas` times the accumulated standard deviation plus the perception floor, or its heading error
   (modulo symmetry) likewise. An object that the plan did not push but that moved beyond the floor
-  was disturbed; and the task has diverged when its observed cost exceeds the plan's prediction
-  by `cost_divergence` of the gain the plan promised (each object may stay within its growing
-  uncertainty while a biased model leaves the whole task behind the plan). Any of these triggers
-  a replan from the observed state, as does a push the robot
+  was disturbed. Either triggers a replan from the observed state, as does a push the robot
   refuses before moving (ExecutionFailed.blocked: from the observed pose it leaves the reach).
 """
 
@@ -399,9 +396,6 @@ class TaskSettings:
     convergence: float = 0.01         # relative predicted improvement below which we stop
     seed: int = 0
     max_replans: int = 20
-    # Replan when the observed cost exceeds the plan's prediction by this fraction of the
-    # improvement the plan promised.
-    cost_divergence: float = 0.25
     # Clearance (m) plans keep between objects: pushes land within a few millimetres, and a plan
     # that leaves less than that makes its objects touch and push each other.
     margin: float = 0.005
@@ -537,15 +531,6 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             predicted = {o.id: Pose2D(*result.states[k + 1][i])
                          for i, o in enumerate(scenario.objects)}
             divergences = tracker.diverged(predicted, observed)
-            promised = float(result.costs[0]) - result.best_cost
-            cost_error = report.final_cost - float(result.costs[k + 1])
-            if cost_error > settings.cost_divergence * promised:
-                # Each object may stay within its accumulated uncertainty while, push after push,
-                # a biased model leaves the task behind the plan: the cost says so directly.
-                divergences.append(Divergence(
-                    "", 0.0, 0.0, f"cost {report.final_cost:.4f} is above the plan's "
-                                  f"{float(result.costs[k + 1]):.4f} by more than "
-                                  f"{settings.cost_divergence:.0%} of its promised gain"))
             if divergences:
                 report.divergences.extend(divergences)
                 report.replans += 1

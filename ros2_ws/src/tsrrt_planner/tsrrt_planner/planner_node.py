@@ -234,7 +234,7 @@ class PlannerNode(Node):
         declare("planner", "tsrrt", ParameterDescriptor(
             description=f"default planner: one of {list(MODES)}"))
         declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
-        declare("planning_margin", 0.012, _float(0.0, 0.1,
+        declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
         declare("max_pushes", 80, _integer(1, 10000, "pushes a RunTask may execute"))
