@@ -52,8 +52,10 @@ def figures(graph: TaskGraph) -> Iterator[dict]:
     print(f"\nFIGURES {measured}")
 
 
-def run_to_success(graph: TaskGraph, figures: dict, **run) -> RunTask.Result:
-    """A RunTask from the current state that must succeed and lower the true cost."""
+def run_to_success(graph: TaskGraph, figures: dict, must_improve: bool = True,
+                   **run) -> RunTask.Result:
+    """A RunTask from the current state that must succeed and (unless the state may already be
+    converged) lower the true cost."""
     start_cost = graph.true_cost()
     status, result = graph.run_task(RunTask.Goal(), **run)
     final_cost = graph.true_cost()
@@ -62,7 +64,7 @@ def run_to_success(graph: TaskGraph, figures: dict, **run) -> RunTask.Result:
                    true_cost=(round(start_cost, 4), round(final_cost, 4)))
     assert status == GoalStatus.STATUS_SUCCEEDED, f"{summary}\n{graph.logs()}"
     assert result.error_code == RunTask.Result.SUCCESS, summary
-    assert final_cost < start_cost, summary
+    assert final_cost < start_cost or not must_improve, summary
     return result
 
 
@@ -95,7 +97,9 @@ def test_planner_killed_mid_task_resumes_with_its_models(graph: TaskGraph, figur
     graph.probe.spin_until(lambda: False, 3.0)
     assert graph.run_client.wait_for_server(timeout_sec=60.0)
     figures["restart_s"] = round(time.monotonic() - began, 1)
-    result = run_to_success(graph, figures)
+    # The killed planner's pushes may have finished the plan before the kill took effect, and
+    # a converged state is then rightly left alone: what counts is the task's start.
+    result = run_to_success(graph, figures, must_improve=False)
     figures["true_cost"] = (round(start_cost, 4), figures["true_cost"][1])
     assert result.learning_trials == 0, describe(result)
     assert graph.true_cost() < start_cost

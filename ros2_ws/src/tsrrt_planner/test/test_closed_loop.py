@@ -423,3 +423,34 @@ def test_task_loop_replans_after_a_push_stopped_part_way_and_stops_on_a_lost_obj
     with pytest.raises(ExecutionFailed, match="lost"):
         run_task(scenario, store, _RobotRefusingTheFirstPush(scenario, seed=100, failure=lost),
                  AnnulusReachability(), settings, bound.cost, target=bound.state)
+
+
+def test_a_plan_that_detours_more_than_it_gains_is_not_executed(monkeypatch) -> None:
+    """A plan that parks an object (cost up by 0.1) to win 0.05 is not executed: the task
+    stops; the same gain without the detour is."""
+    import tsrrt_planner.closed_loop as closed_loop
+    from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
+
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    robot = _SimulatedRobot(scenario, seed=1)
+    start = np.array([robot.observe()[o.id].as_array() for o in scenario.objects])
+
+    def plan(costs):
+        def fake_plan_from(scenario_, poses, *args, **kwargs):
+            problem = PlanningProblem(closed_loop.scenario_at(scenario_, poses), store,
+                                      AnnulusReachability())
+            now = float(problem.objective.cost(start))
+            steps = tuple(PlanStep("plate_1", 3, 0.01) for _ in costs)
+            return problem, PlanResult("tsrrt", 0, steps, np.stack([start] * (len(costs) + 1)),
+                                       np.array([now] + [now + c for c in costs]), 1, 0.0, (),
+                                       "time")
+        return fake_plan_from
+
+    settings = TaskSettings(max_pushes=1)
+    monkeypatch.setattr(closed_loop, "plan_from", plan([0.1, -0.05]))
+    report = run_task(scenario, store, robot, AnnulusReachability(), settings, -1.0)
+    assert report.converged and report.pushes == 0
+    monkeypatch.setattr(closed_loop, "plan_from", plan([-0.02, -0.05]))
+    report = run_task(scenario, store, robot, AnnulusReachability(), settings, -1.0)
+    assert report.pushes == 1

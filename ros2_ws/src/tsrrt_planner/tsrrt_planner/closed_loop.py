@@ -16,6 +16,7 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
+  A plan whose costs climb higher on the way than it finally gains counts as no improvement.
   Relative to the larger of the cost and the task's range (start cost to lower bound): where
   the optimum is zero, 1 % of the cost is micrometres, and plans that detour far for that much
   were executed. For the same reason a plan is abandoned for a fresh one once what is left of
@@ -478,7 +479,12 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         if not report.costs:
             report.costs.append(current)
         improvement = current - result.best_cost
-        if not result.steps or _negligible(improvement, current, report, settings):
+        # A plan that climbs higher on its way than it finally gains is a detour for a polish
+        # (near an optimum TASK_SPACE_RRT may park an object to win a millimetre); executed, its
+        # errors cost more than the polish is worth.
+        detour = float(np.max(result.costs)) - current
+        if (not result.steps or _negligible(improvement, current, report, settings)
+                or detour > improvement):
             report.converged = True
             report.stop_reason = "converged"
             return report
