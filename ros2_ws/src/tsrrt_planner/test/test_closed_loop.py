@@ -427,7 +427,8 @@ def test_task_loop_replans_after_a_push_stopped_part_way_and_stops_on_a_lost_obj
 
 def test_a_plan_that_detours_more_than_it_gains_is_not_executed(monkeypatch) -> None:
     """A plan that parks an object (cost up by 0.1) to win 0.05 is not executed: the task
-    stops; the same gain without the detour is."""
+    stops; the same gain without the detour is, and of a plan that first gains and then
+    detours only the first part."""
     import tsrrt_planner.closed_loop as closed_loop
     from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
 
@@ -454,3 +455,7 @@ def test_a_plan_that_detours_more_than_it_gains_is_not_executed(monkeypatch) -> 
     monkeypatch.setattr(closed_loop, "plan_from", plan([-0.02, -0.05]))
     report = run_task(scenario, store, robot, AnnulusReachability(), settings, -1.0)
     assert report.pushes == 1
+    monkeypatch.setattr(closed_loop, "plan_from", plan([-0.04, 0.2, -0.06]))
+    report = run_task(scenario, store, robot, AnnulusReachability(),
+                      TaskSettings(max_pushes=5), -1.0)
+    assert report.planned == 1

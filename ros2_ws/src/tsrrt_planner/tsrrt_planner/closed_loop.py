@@ -16,7 +16,8 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
-  A plan whose costs climb higher on the way than it finally gains counts as no improvement.
+  Of a plan whose costs climb higher on the way than it finally gains, only the part before
+  the climb is executed (none, when that part gains nothing).
   Relative to the larger of the cost and the task's range (start cost to lower bound): where
   the optimum is zero, 1 % of the cost is micrometres, and plans that detour far for that much
   were executed. For the same reason a plan is abandoned for a fresh one once what is left of
@@ -478,19 +479,21 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         report.predicted_cost = result.best_cost
         if not report.costs:
             report.costs.append(current)
-        improvement = current - result.best_cost
+        steps = len(result.steps)
         # A plan that climbs higher on its way than it finally gains is a detour for a polish
         # (near an optimum TASK_SPACE_RRT may park an object to win a millimetre); executed, its
-        # errors cost more than the polish is worth.
-        detour = float(np.max(result.costs)) - current
-        if (not result.steps or _negligible(improvement, current, report, settings)
-                or detour > improvement):
+        # errors cost more than the polish is worth. Only its part before the climb is executed.
+        costs = np.asarray(result.costs, dtype=float)
+        if float(costs.max()) - current > current - result.best_cost:
+            steps = int(np.argmin(costs[:int(np.argmax(costs)) + 1]))
+        improvement = current - float(costs[steps])
+        if steps == 0 or _negligible(improvement, current, report, settings):
             report.converged = True
             report.stop_reason = "converged"
             return report
         tracker = PredictionTracker(scenario.objects)
-        report.planned = len(result.steps)
-        for k, step in enumerate(result.steps):
+        report.planned = steps
+        for k, step in enumerate(result.steps[:steps]):
             if cancelled():
                 report.stop_reason = "cancelled"
                 return report
