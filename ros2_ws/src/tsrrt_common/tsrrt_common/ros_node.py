@@ -1,4 +1,5 @@
-"""What every tsrrt node shares with rclpy: a race-free action client and the node's main loop.
+"""What every tsrrt node shares with rclpy: a race-free action client, the node's main loop
+and time stamps.
 
 The one module of tsrrt_common that imports rclpy; the ROS-free cores never import it.
 """
@@ -11,12 +12,19 @@ from typing import Any
 
 import rclpy
 import rclpy.action
+from builtin_interfaces.msg import Time as TimeMessage
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 
 from tsrrt_common.errors import TsrrtError
+
+
+def time_message(seconds: float) -> TimeMessage:
+    """builtin_interfaces/Time of a time in seconds (e.g. simulation time)."""
+    nanoseconds = round(seconds * 1e9)
+    return TimeMessage(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 
 class ActionClient(rclpy.action.ActionClient):

@@ -37,7 +37,6 @@ import time
 
 import numpy as np
 from builtin_interfaces.msg import Duration
-from builtin_interfaces.msg import Time as TimeMessage
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -48,7 +47,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.robot_model import ARM_JOINT_NAMES
-from tsrrt_common.ros_node import ActionClient, run_node
+from tsrrt_common.ros_node import ActionClient, run_node, time_message
 from tsrrt_executor.errors import IKError, PrimitiveError, TrajectoryError, UnreachableError
 from tsrrt_executor.inverse_kinematics import PusherIK
 from tsrrt_executor.primitive_plan import (
@@ -79,11 +78,6 @@ PHASE_CODES = {PHASE_APPROACH: Feedback.PHASE_APPROACH, PHASE_PUSH: Feedback.PHA
 CONTROLLER = "/arm_controller/follow_joint_trajectory"
 UNKNOWN_ID_RECHECKS = 2     # further /perception/objects messages looked at for a missing id
 
-
-
-def _time_message(seconds: float) -> TimeMessage:
-    nanoseconds = round(seconds * 1e9)
-    return TimeMessage(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 class GoalFailed(Exception):
     """Ends a goal early with an ExecutePrimitive error code and message."""
@@ -311,7 +305,7 @@ class ExecutorNode(Node):
             # Never ask for less than a few frames' worth: a sliver of time cannot succeed.
             wait_s = max(remaining, 0.5)
             future = self.settled_client.call_async(GetSettledObjects.Request(
-                timeout_s=wait_s, not_before=_time_message(not_before)))
+                timeout_s=wait_s, not_before=time_message(not_before)))
             if not self._wait(future, wait_s + timeout, goal_handle):
                 raise GoalFailed(Result.OBJECT_LOST, "perception did not answer the request "
                                                      "for a settled observation")

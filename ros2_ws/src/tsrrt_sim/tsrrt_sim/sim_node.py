@@ -35,7 +35,6 @@ from typing import Any, TypeVar
 
 import numpy as np
 import rclpy
-from builtin_interfaces.msg import Time as TimeMsg
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
@@ -49,7 +48,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, wrap_angle
 from tsrrt_common.robot_model import ARM_JOINT_NAMES
-from tsrrt_common.ros_node import run_node
+from tsrrt_common.ros_node import run_node, time_message
 from tsrrt_common.scenario import load_scenario
 from tsrrt_interfaces.action import FollowJointTrajectory
 from tsrrt_interfaces.msg import ObjectState, ObjectStateArray
@@ -82,12 +81,6 @@ T = TypeVar("T")
 
 for _code in TrajectoryErrorCode:   # the core's codes are the action's codes
     assert getattr(FollowJointTrajectory.Result, _code.name) == _code.value, _code
-
-
-def stamp(seconds: float) -> TimeMsg:
-    """builtin_interfaces/Time of a simulation time in seconds."""
-    nanoseconds = round(seconds * 1e9)
-    return TimeMsg(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 
 def _point(positions: np.ndarray, velocities: np.ndarray, accelerations: np.ndarray | None = None
@@ -249,7 +242,7 @@ class SimNode(Node):
                 self._run_requests()
                 world.step(self.tick_steps)
                 now_sim = world.sim_time
-                self.clock_publisher.publish(Clock(clock=stamp(now_sim)))
+                self.clock_publisher.publish(Clock(clock=time_message(now_sim)))
                 if now_sim >= next_joint_state:
                     self._publish_joint_state()
                     next_joint_state += self.joint_state_period * math.ceil(
@@ -282,7 +275,7 @@ class SimNode(Node):
     def _publish_joint_state(self) -> None:
         state = self.world.joint_state()
         message = JointState()
-        message.header.stamp = stamp(self.world.sim_time)
+        message.header.stamp = time_message(self.world.sim_time)
         message.name = list(ARM_JOINT_NAMES)
         message.position = state.positions.tolist()
         message.velocity = state.velocities.tolist()
@@ -305,7 +298,7 @@ class SimNode(Node):
         if drop_fraction > 0.0 and self._drop_random.random() < drop_fraction:
             self._publish_ground_truth(state)
             return
-        header_stamp = stamp(frame.sim_time)
+        header_stamp = time_message(frame.sim_time)
         rgb = numpy_to_image(frame.rgb, "rgb8")
         depth = numpy_to_image(frame.depth, "32FC1")
         for message in (rgb, depth, self.camera_info):
@@ -319,7 +312,7 @@ class SimNode(Node):
     def _publish_ground_truth(self, state: VisualState) -> None:
         """True poses of the movable objects at the state's time, theta kept continuous."""
         message = ObjectStateArray()
-        message.header.stamp = stamp(state.sim_time)
+        message.header.stamp = time_message(state.sim_time)
         message.header.frame_id = WORLD_FRAME
         for spec in self.world.scenario.objects:
             position, orientation = state.body_poses[spec.id]
@@ -416,7 +409,7 @@ class SimNode(Node):
         desired: SetPoint = execution.desired
         positions, velocities = execution.actual_positions, execution.actual_velocities
         feedback = FollowJointTrajectory.Feedback()
-        feedback.header.stamp = stamp(execution.time)
+        feedback.header.stamp = time_message(execution.time)
         feedback.joint_names = list(ARM_JOINT_NAMES)
         feedback.desired = _point(desired.positions, desired.velocities, desired.accelerations)
         feedback.actual = _point(positions, velocities)
