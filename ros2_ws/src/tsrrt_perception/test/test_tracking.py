@@ -35,6 +35,12 @@ def frame_with_block(camera_view, footprint: np.ndarray, height: float) -> Heigh
     return HeightImage(heights, camera_view, 0.0)
 
 
+def frame_with_object(camera_view, cls: ObjectClass, x: float, y: float) -> HeightImage:
+    """A frame whose depth shows an object segmentation missed (its colour, say)."""
+    footprint = box_corners(cls.length, cls.width) + np.array([x, y])
+    return frame_with_block(camera_view, footprint, cls.height)
+
+
 def by_id(tracker: ObjectTracker, frame_age: float | None = None):
     return {e.id: e for e in tracker.estimates(frame_age)}
 
@@ -126,23 +132,47 @@ def test_covered_object_is_occluded_with_its_last_pose_then_reacquired(classes, 
 def test_push_between_sparse_frames_keeps_the_id(classes, camera_view, frame_interval,
                                                  same_track):
     """At 10 frames per wall second a fast simulation may push an object 6 cm between two frames
-    seconds of simulated time apart: it is the same object. Frames 0.1 s apart bound it to 5 cm."""
+    seconds of simulated time apart: it is the same object. Frames 0.1 s apart bound it to 5 cm,
+    so while depth still sees something at the old place, the detection is another object."""
     eraser = classes["eraser"]
     tracker = ObjectTracker(classes)
     tracker.update([detection(eraser, 0.45, 0.0)], 0.0, empty_frame(camera_view))
-    tracker.update([detection(eraser, 0.51, 0.0)], frame_interval, empty_frame(camera_view))
+    tracker.update([detection(eraser, 0.51, 0.0)], frame_interval,
+                   frame_with_object(camera_view, eraser, 0.45, 0.0))
     estimates = by_id(tracker)
     assert (estimates["eraser_1"].status is TrackStatus.TRACKED) == same_track
     assert ("eraser_2" in estimates) != same_track
 
 
+def test_object_that_left_a_bare_place_keeps_its_id_where_it_went(classes, camera_view):
+    """A bump (or a scenario reload) moves a plate 20 cm between frames: its old place shows the
+    bare table, so it is gone from there at once and the new detection takes its id back."""
+    plate = classes["plate"]
+    tracker = ObjectTracker(classes)
+    tracker.update([detection(plate, 0.45, 0.0)], 0.0, empty_frame(camera_view))
+    tracker.update([detection(plate, 0.45, 0.2)], 0.1, empty_frame(camera_view))
+    estimates = by_id(tracker)
+    assert list(estimates) == ["plate_1"]
+    assert estimates["plate_1"].status is TrackStatus.TRACKED
+    assert (estimates["plate_1"].pose.x, estimates["plate_1"].pose.y) == (0.45, 0.2)
+
+
+def test_object_whose_place_is_bare_is_lost_at_once(classes, camera_view):
+    tracker = ObjectTracker(classes)
+    tracker.update([detection(classes["remote"], 0.45, 0.0)], 0.0, empty_frame(camera_view))
+    tracker.update([], 0.1, empty_frame(camera_view))
+    assert by_id(tracker)["remote_1"].status is TrackStatus.LOST
+
+
 def test_unseen_object_is_stale_then_lost(classes, camera_view):
     params = TrackerParams(lost_timeout=1.0)
     tracker = ObjectTracker(classes, params)
-    tracker.update([detection(classes["remote"], 0.45, 0.0)], 0.0, empty_frame(camera_view))
-    tracker.update([], 0.5, empty_frame(camera_view))
+    remote = classes["remote"]
+    tracker.update([detection(remote, 0.45, 0.0)], 0.0, empty_frame(camera_view))
+    missed = frame_with_object(camera_view, remote, 0.45, 0.0)
+    tracker.update([], 0.5, missed)
     assert by_id(tracker)["remote_1"].status is TrackStatus.STALE
-    tracker.update([], 1.5, empty_frame(camera_view))
+    tracker.update([], 1.5, missed)
     assert by_id(tracker)["remote_1"].status is TrackStatus.LOST
 
 
@@ -186,6 +216,7 @@ def test_settling_needs_every_object_in_view(classes, camera_view):
                         detection(classes["plate"], 0.5, 0.15)], 0.1 * step,
                        empty_frame(camera_view))
     assert tracker.settled()
-    tracker.update([detection(classes["eraser"], 0.4, 0.0)], 0.6, empty_frame(camera_view))
+    tracker.update([detection(classes["eraser"], 0.4, 0.0)], 0.6,
+                   frame_with_object(camera_view, classes["plate"], 0.5, 0.15))
     assert not tracker.settled()
     assert tracker.unsettled_reasons() == ["plate_1 stale"]

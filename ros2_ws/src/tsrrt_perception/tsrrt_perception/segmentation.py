@@ -93,14 +93,25 @@ class HeightImage:
     def covered_fraction(self, footprint_world: np.ndarray, top_height: float,
                          margin: float) -> float:
         """Share of the footprint's pixels where something stands more than margin above it."""
+        heights = self._footprint_heights(footprint_world, top_height)
+        if heights.size == 0:
+            return 0.0
+        return float(np.count_nonzero(heights > top_height + margin)) / heights.size
+
+    def bare_fraction(self, footprint_world: np.ndarray, top_height: float,
+                      below: float) -> float:
+        """Share of the footprint's pixels that see the bare table (lower than `below`):
+        an object whose footprint is bare has left, it is not merely missed by segmentation."""
+        heights = self._footprint_heights(footprint_world, top_height)
+        if heights.size == 0:
+            return 0.0
+        return float(np.count_nonzero((heights < below) & np.isfinite(heights))) / heights.size
+
+    def _footprint_heights(self, footprint_world: np.ndarray, top_height: float) -> np.ndarray:
         polygon = np.round(self.footprint_pixels(footprint_world, top_height)).astype(np.int32)
         mask = np.zeros(self.heights.shape, np.uint8)
         cv2.fillPoly(mask, [polygon], 1)
-        inside = mask.astype(bool)
-        total = int(inside.sum())
-        if total == 0:
-            return 0.0
-        return float(np.count_nonzero(self.heights[inside] > top_height + margin)) / total
+        return self.heights[mask.astype(bool)]
 
 
 def _colour_edges(rgb: np.ndarray, threshold: int) -> np.ndarray:

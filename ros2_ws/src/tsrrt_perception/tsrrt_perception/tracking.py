@@ -56,6 +56,9 @@ class TrackerParams:
     angle_cost: float = 0.01            # m of assignment cost per radian of heading mismatch
     occlusion_margin: float = 0.01      # m above an object's top that counts as covering it
     occlusion_min_fraction: float = 0.02  # share of the footprint that must be covered
+    # share of an unseen object's footprint that must show the bare table for it to have left
+    # (LOST at once, so that a same-class detection elsewhere takes its id back)
+    vacated_min_fraction: float = 0.9
     lost_timeout: float = 5.0           # s unseen (and not covered) after which it is LOST
     stale_timeout: float = 1.0          # s without a new frame (caller's clock): poses STALE
     settle_window: float = 0.3          # s over which an object must be still to be settled
@@ -165,12 +168,14 @@ class ObjectTracker:
         for track, detection in matched_tracks:
             track.observe(detection, stamp)
         seen = {id(track) for track, _ in matched_tracks}
-        self._name_new(unmatched, stamp)
         obstructions = [d for d in detections if not d.pose_valid]
         for track in self.tracks:
             if id(track) not in seen and track.last_seen is not None \
                     and track.last_seen != stamp:
                 track.status = self._unseen_status(track, stamp, height_image, obstructions)
+        # After the statuses: an object that left its place (a bump, a scenario reload) is LOST
+        # by now, and the detection where it went takes its id back.
+        self._name_new(unmatched, stamp)
         self.last_frame = stamp
 
     def _assign(self, tracks: list[_Track], detections: list[Detection],
@@ -249,6 +254,9 @@ class ObjectTracker:
                                                     self.params.occlusion_margin)
             if covered >= self.params.occlusion_min_fraction:
                 return TrackStatus.OCCLUDED
+            bare = height_image.bare_fraction(footprint, track.height, 0.5 * track.height)
+            if bare >= self.params.vacated_min_fraction:
+                return TrackStatus.LOST
         for detection in obstructions:
             near = math.hypot(detection.pose.x - track.pose.x, detection.pose.y - track.pose.y)
             if near <= self.params.gate_unseen and (detection.occluded or detection.truncated
