@@ -8,7 +8,10 @@ run on a MultiThreadedExecutor and hand work to the physics thread through a que
 Time: this node drives /clock and therefore never runs on simulation time itself; physics is paced
 by the wall clock (real_time_factor > 0) or runs as fast as it can (0). Message stamps are
 simulation time. Rates:
-- clock_rate_hz and joint_state_rate_hz are in simulation time, like a robot's own loops;
+- clock_rate_hz and joint_state_rate_hz are in simulation time, like a robot's own loops, and
+  capped at max_publish_wall_hz per wall second: at a real-time factor of 40, 40 Hz of simulated
+  time would be 1600 messages per wall second, and every node on simulation time wakes for each
+  /clock (an idle rclpy node spent 40 % of a core on it);
 - camera_rate_hz is in wall-clock time: TinyRenderer is slow, and consumers process frames at a
   wall-clock pace; at a real-time factor of 20, 10 frames per wall second are one frame every
   2 s of simulated time. Frames are rendered in a worker process while physics continues, and
@@ -104,6 +107,7 @@ class SimNode(Node):
         self.real_time_factor = p("real_time_factor")
         self.tick_steps = max(1, round(self.physics_hz / p("clock_rate_hz")))
         self.joint_state_period = 1.0 / p("joint_state_rate_hz")
+        self.publish_wall_period = 1.0 / p("max_publish_wall_hz")
         self.camera_period = 1.0 / p("camera_rate_hz")
         self.feedback_period = 1.0 / p("feedback_rate_hz")
         self._drop_random = random.Random(0)
@@ -177,6 +181,9 @@ class SimNode(Node):
                "/clock messages per simulated second (rounded to whole physics steps)")
         number("joint_state_rate_hz", 40.0, 1.0, 1000.0,
                "/joint_states messages per simulated second (at most one per clock tick)")
+        number("max_publish_wall_hz", 50.0, 1.0, 1000.0,
+               "/clock and /joint_states messages per WALL-CLOCK second at most (the cap "
+               "of a simulation faster than real time)")
         number("camera_rate_hz", 10.0, 0.1, 60.0,
                "camera frames per WALL-CLOCK second (rendering is the bottleneck)")
         self.declare_parameter("camera_drop_fraction", 0.0, ParameterDescriptor(
@@ -236,17 +243,19 @@ class SimNode(Node):
         world = self.world
         wall_origin, sim_origin = time.monotonic(), world.sim_time
         next_joint_state = world.sim_time
-        next_frame_wall = time.monotonic()
+        next_frame_wall = next_publish_wall = time.monotonic()
         try:
             while not self._stop.is_set() and self.context.ok():
                 self._run_requests()
                 world.step(self.tick_steps)
                 now_sim = world.sim_time
-                self.clock_publisher.publish(Clock(clock=time_message(now_sim)))
-                if now_sim >= next_joint_state:
-                    self._publish_joint_state()
-                    next_joint_state += self.joint_state_period * math.ceil(
-                        (now_sim - next_joint_state + 1e-12) / self.joint_state_period)
+                if time.monotonic() >= next_publish_wall:
+                    next_publish_wall = time.monotonic() + self.publish_wall_period
+                    self.clock_publisher.publish(Clock(clock=time_message(now_sim)))
+                    if now_sim >= next_joint_state:
+                        self._publish_joint_state()
+                        next_joint_state += self.joint_state_period * math.ceil(
+                            (now_sim - next_joint_state + 1e-12) / self.joint_state_period)
                 frame = self.renderer.poll()
                 if frame is not None:
                     self._publish_frame(frame, self._pending_visual_state)
