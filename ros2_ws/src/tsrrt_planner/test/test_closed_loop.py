@@ -425,8 +425,8 @@ def test_task_loop_replans_after_a_push_stopped_part_way_and_stops_on_a_lost_obj
                  AnnulusReachability(), settings, bound.cost, target=bound.state)
 
 
-def test_a_plan_that_detours_more_than_it_gains_is_not_executed(monkeypatch) -> None:
-    """A plan that parks an object (cost up by 0.1) to win 0.05 is not executed: the task
+def test_a_plan_that_detours_far_more_than_it_gains_is_not_executed(monkeypatch) -> None:
+    """A plan that parks an object (cost up by 0.2) to win 0.05 is not executed: the task
     stops; the same gain without the detour is, and of a plan that first gains and then
     detours only the first part."""
     import tsrrt_planner.closed_loop as closed_loop
@@ -449,7 +449,7 @@ def test_a_plan_that_detours_more_than_it_gains_is_not_executed(monkeypatch) -> 
         return fake_plan_from
 
     settings = TaskSettings(max_pushes=1)
-    monkeypatch.setattr(closed_loop, "plan_from", plan([0.1, -0.05]))
+    monkeypatch.setattr(closed_loop, "plan_from", plan([0.2, -0.05]))
     report = run_task(scenario, store, robot, AnnulusReachability(), settings, -1.0)
     assert report.converged and report.pushes == 0
     monkeypatch.setattr(closed_loop, "plan_from", plan([-0.02, -0.05]))
@@ -459,3 +459,19 @@ def test_a_plan_that_detours_more_than_it_gains_is_not_executed(monkeypatch) -> 
     report = run_task(scenario, store, robot, AnnulusReachability(),
                       TaskSettings(max_pushes=5), -1.0)
     assert report.planned == 1
+
+
+def test_a_detour_is_executed_for_a_gain_of_its_size_and_cut_before_the_climb_for_a_polish(
+) -> None:
+    """Two boxes (a real run): from 0.004 a plan went up to 0.3 to win 0.003, and executed, it
+    walked the boxes away from the goal; cut before the climb, one push is left. Moving an
+    object aside for a gain of the climb's size is what planning is for."""
+    from tsrrt_planner.closed_loop import steps_worth_executing
+
+    settings = TaskSettings(detour_max_climb=2.0)
+    polish = np.array([0.004, 0.0035, 0.1, 0.3, 0.05, 0.001])
+    assert steps_worth_executing(polish, settings) == 1
+    aside = np.array([-0.371, -0.38, -0.30, -0.25, -0.40, -0.482])
+    assert steps_worth_executing(aside, settings) == 5
+    straight = np.array([0.004, 0.003, 0.001])
+    assert steps_worth_executing(straight, settings) == 2

@@ -16,8 +16,8 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
-  Of a plan whose costs climb higher on the way than it finally gains, only the part before
-  the climb is executed (none, when that part gains nothing).
+  Of a plan whose costs climb more than twice as high on the way as it finally gains (a
+  polish), only the part before the climb is executed (none, when that part gains nothing).
   Relative to the larger of the cost and the task's range (start cost to lower bound): where
   the optimum is zero, 1 % of the cost is micrometres, and plans that detour far for that much
   were executed. For the same reason a plan is abandoned for a fresh one once what is left of
@@ -401,6 +401,9 @@ class TaskSettings:
     # Clearance (m) plans keep between objects: pushes land within a few millimetres, and a plan
     # that leaves less than that makes its objects touch and push each other.
     margin: float = 0.005
+    # A plan that climbs more than this many times what it finally gains is a detour for a
+    # polish, of which only the part before the climb is executed.
+    detour_max_climb: float = 2.0
 
 
 @dataclass
@@ -479,14 +482,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         report.predicted_cost = result.best_cost
         if not report.costs:
             report.costs.append(current)
-        steps = len(result.steps)
-        # A plan that climbs higher on its way than it finally gains is a detour for a polish
-        # (near an optimum TASK_SPACE_RRT may park an object to win a millimetre); executed, its
-        # errors cost more than the polish is worth. Only its part before the climb is executed.
-        costs = np.asarray(result.costs, dtype=float)
-        if float(costs.max()) - current > current - result.best_cost:
-            steps = int(np.argmin(costs[:int(np.argmax(costs)) + 1]))
-        improvement = current - float(costs[steps])
+        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings)
+        improvement = current - float(result.costs[steps])
         if steps == 0 or _negligible(improvement, current, report, settings):
             report.converged = True
             report.stop_reason = "converged"
@@ -550,15 +547,35 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 break
 
 
-def _negligible(improvement: float, cost: float, report: TaskReport,
-               settings: TaskSettings) -> bool:
-    """Whether a predicted improvement is below `convergence` of the larger of the cost and
-    the task's range (start cost to lower bound), so a zero optimum is not chased to the last
-    micrometre."""
+def steps_worth_executing(costs: np.ndarray, settings: TaskSettings) -> int:
+    """How many pushes of a plan with these costs (start first) to execute.
+
+    All, unless the plan is a detour for a polish: it climbs more than `detour_max_climb` times
+    what it finally gains (near an optimum TASK_SPACE_RRT may park an object to win a
+    millimetre; executed, its errors cost more than the polish is worth). Of such a plan, the
+    part before the climb. A detour of the gain's own size (objects moved aside to let another
+    through) is the point of planning, and is executed.
+    """
+    current, best = float(costs[0]), float(costs.min())
+    climb, gain = float(costs.max()) - current, current - best
+    if climb > settings.detour_max_climb * gain:
+        return int(np.argmin(costs[:int(np.argmax(costs)) + 1]))
+    return len(costs) - 1
+
+
+def _task_scale(cost: float, report: TaskReport) -> float:
+    """The larger of the cost and the task's range (start cost to lower bound): the yardstick
+    of gains, so that a zero optimum is not chased to the last micrometre."""
     scale = max(abs(cost), 1e-9)
     if math.isfinite(report.lower_bound) and math.isfinite(report.start_cost):
         scale = max(scale, report.start_cost - report.lower_bound)
-    return improvement <= settings.convergence * scale
+    return scale
+
+
+def _negligible(improvement: float, cost: float, report: TaskReport,
+               settings: TaskSettings) -> bool:
+    """Whether a predicted improvement is below `convergence` of the task's scale."""
+    return improvement <= settings.convergence * _task_scale(cost, report)
 
 
 def _state_of(problem: PlanningProblem, poses: Mapping[str, Pose2D]) -> np.ndarray:
