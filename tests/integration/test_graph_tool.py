@@ -213,8 +213,11 @@ def test_param_list_get_and_dump(env):
 @pytest.mark.parametrize("command", [["echo", "/graph_test/chatter"],
                                      ["hz", "/graph_test/chatter"]])
 def test_ctrl_c_ends_a_streaming_command_cleanly(env, command):
+    # As from a terminal: a test run started in the background (`cmd &` in a script) passes on
+    # SIGINT ignored, and Python then never turns Ctrl-C into KeyboardInterrupt.
     process = subprocess.Popen([sys.executable, str(GRAPH), *command, "--wait", "20"], env=env,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         first_line = process.stdout.readline()          # blocks until the command prints
         assert first_line, process.stderr.read()
