@@ -563,19 +563,15 @@ def steps_worth_executing(costs: np.ndarray, settings: TaskSettings) -> int:
     return len(costs) - 1
 
 
-def _task_scale(cost: float, report: TaskReport) -> float:
-    """The larger of the cost and the task's range (start cost to lower bound): the yardstick
-    of gains, so that a zero optimum is not chased to the last micrometre."""
+def _negligible(improvement: float, cost: float, report: TaskReport,
+               settings: TaskSettings) -> bool:
+    """Whether a predicted improvement is below `convergence` of the larger of the cost and
+    the task's range (start cost to lower bound), so a zero optimum is not chased to the last
+    micrometre."""
     scale = max(abs(cost), 1e-9)
     if math.isfinite(report.lower_bound) and math.isfinite(report.start_cost):
         scale = max(scale, report.start_cost - report.lower_bound)
-    return scale
-
-
-def _negligible(improvement: float, cost: float, report: TaskReport,
-               settings: TaskSettings) -> bool:
-    """Whether a predicted improvement is below `convergence` of the task's scale."""
-    return improvement <= settings.convergence * _task_scale(cost, report)
+    return improvement <= settings.convergence * scale
 
 
 def _state_of(problem: PlanningProblem, poses: Mapping[str, Pose2D]) -> np.ndarray:
