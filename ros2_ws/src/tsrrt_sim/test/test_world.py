@@ -259,3 +259,13 @@ def test_render_worker_draws_the_same_image(camera_world):
     assert remote.sim_time == local.sim_time
     assert np.mean(np.abs(remote.rgb.astype(int) - local.rgb.astype(int))) < 0.5
     np.testing.assert_allclose(remote.depth, local.depth, atol=1e-4)
+
+
+def test_render_worker_closes_with_a_frame_in_flight(camera_world):
+    """A finished frame waits in the pipe and blocks the worker until it is read: closing must
+    read it, or the worker never sees "stop" and is killed (a sim_node slow to end on SIGTERM)."""
+    worker = RenderWorker(camera_world.scenario, camera_world.camera)
+    worker.request(camera_world.visual_state())
+    assert worker._connection.poll(60.0)           # rendered, not yet collected
+    worker.close()
+    assert worker._process.exitcode == 0

@@ -19,6 +19,7 @@ from tsrrt_common.scenario import Scenario
 from tsrrt_sim.world import DEFAULT_CAMERA, CameraFrame, SimWorld, SimWorldError, VisualState
 
 _STARTUP_TIMEOUT_S = 60.0
+_STOP_DRAIN_TIMEOUT_S = 2.0   # longest a frame in flight is waited for when closing
 
 
 def _serve(connection: Connection, scenario: Scenario, camera: OverheadCamera,
@@ -121,8 +122,13 @@ class RenderWorker:
         """Stop the worker process (idempotent)."""
         if self._process.is_alive():
             try:
+                # A frame in flight fills the pipe and blocks the worker until it is read: it
+                # would never see "stop", and closing would wait out the join and kill it.
+                if self._busy and self._connection.poll(_STOP_DRAIN_TIMEOUT_S):
+                    self._connection.recv()
+                self._busy = False
                 self._connection.send(("stop", None))
-            except (BrokenPipeError, OSError):
+            except (EOFError, OSError):
                 pass
             self._process.join(timeout=5.0)
             if self._process.is_alive():
