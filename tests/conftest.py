@@ -85,6 +85,7 @@ class Launcher:
         self.env = env
         self.log_dir = log_dir
         self.processes: list[NodeProcess] = []
+        self.domains = {env["ROS_DOMAIN_ID"]}    # this module's and every one handed out
 
     def start(self, package: str, node: str, *parameters: str, params_file: bool = True,
               env: dict[str, str] | None = None) -> NodeProcess:
@@ -103,8 +104,11 @@ class Launcher:
         return process
 
     def other_domain_env(self) -> dict[str, str]:
-        """The environment with a domain id different from this module's (an isolated node)."""
-        return dict(self.env, ROS_DOMAIN_ID=str(free_domain_id({self.env["ROS_DOMAIN_ID"]})))
+        """The environment with a domain id of its own: not this module's, nor one handed out
+        before (three isolated planners once drew the same id and answered each other's goals)."""
+        domain = str(free_domain_id(self.domains))
+        self.domains.add(domain)
+        return dict(self.env, ROS_DOMAIN_ID=domain)
 
     def stop_all(self) -> None:
         for process in reversed(self.processes):
