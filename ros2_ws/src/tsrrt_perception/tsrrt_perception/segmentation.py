@@ -108,10 +108,17 @@ class HeightImage:
         return float(np.count_nonzero((heights < below) & np.isfinite(heights))) / heights.size
 
     def _footprint_heights(self, footprint_world: np.ndarray, top_height: float) -> np.ndarray:
+        """Heights of the pixels inside the footprint, from a mask of its bounding box only
+        (a whole-frame mask per object and frame churned the heap of a long-running node)."""
         polygon = np.round(self.footprint_pixels(footprint_world, top_height)).astype(np.int32)
-        mask = np.zeros(self.heights.shape, np.uint8)
-        cv2.fillPoly(mask, [polygon], 1)
-        return self.heights[mask.astype(bool)]
+        rows, cols = self.heights.shape
+        u0, v0 = np.clip(polygon.min(axis=0), 0, [cols, rows])
+        u1, v1 = np.clip(polygon.max(axis=0) + 1, 0, [cols, rows])
+        if u1 <= u0 or v1 <= v0:
+            return self.heights[:0, 0]
+        mask = np.zeros((v1 - v0, u1 - u0), np.uint8)
+        cv2.fillPoly(mask, [polygon - np.array([u0, v0], np.int32)], 1)
+        return self.heights[v0:v1, u0:u1][mask.astype(bool)]
 
 
 def _colour_edges(rgb: np.ndarray, threshold: int) -> np.ndarray:
