@@ -136,9 +136,10 @@ def test_camera_publishes_images_intrinsics_and_matching_ground_truth(probe):
     info = probe.camera_info
     assert info.header.frame_id == probe.images[-1].header.frame_id == "camera_optical"
     np.testing.assert_allclose(np.array(info.k).reshape(3, 3), camera.intrinsics)
-    stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in probe.truth}
+    # Ground truth for exactly that frame (on its own topic, it may arrive just after the image)
     image_stamp = probe.images[-1].header.stamp
-    assert (image_stamp.sec, image_stamp.nanosec) in stamps   # truth for exactly that frame
+    assert probe.spin_until(lambda: (image_stamp.sec, image_stamp.nanosec) in {
+        (m.header.stamp.sec, m.header.stamp.nanosec) for m in probe.truth}, timeout=5.0)
     assert [o.id for o in probe.truth[-1].objects] == ["eraser"]
 
 
