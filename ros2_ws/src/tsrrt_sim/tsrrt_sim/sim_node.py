@@ -249,8 +249,9 @@ class SimNode(Node):
                 self._run_requests()
                 world.step(self.tick_steps)
                 now_sim = world.sim_time
-                if time.monotonic() >= next_publish_wall:
-                    next_publish_wall = time.monotonic() + self.publish_wall_period
+                tick_wall = time.monotonic()
+                if tick_wall >= next_publish_wall:
+                    next_publish_wall = tick_wall + self.publish_wall_period
                     self.clock_publisher.publish(Clock(clock=time_message(now_sim)))
                     if now_sim >= next_joint_state:
                         self._publish_joint_state()
