@@ -6,15 +6,14 @@ import pytest
 from tsrrt_common.geometry import Pose2D
 from tsrrt_executor.errors import IKError, UnreachableError
 from tsrrt_executor.inverse_kinematics import PusherIK
-from tsrrt_executor.push_primitives import push_geometry
+from tsrrt_executor.push_primitives import ball_path_points, push_geometry
 from tsrrt_executor.reachability import (
     ReachabilityMapError,
     default_map,
     erode,
     is_reachable,
     load_grid,
-    push_is_reachable,
-    segment_is_reachable,
+    push_is_executable,
 )
 
 
@@ -50,25 +49,35 @@ def test_far_points_outside_the_grid_have_no_ik_solution():
 def test_pushes_at_the_table_centre_are_reachable_all_six():
     for primitive in range(1, 7):
         geometry = push_geometry("box", 0.12, 0.05, 0.03, Pose2D(0.45, 0.0, 0.3), primitive)
-        assert push_is_reachable(geometry)
+        assert push_is_executable(geometry)
 
 
 def test_push_from_the_robot_side_at_the_near_edge_is_unreachable():
     pose = Pose2D(0.34, 0.0, 0.0)  # primitive 1 approaches from x = 0.34 - 0.06 - 0.022
-    assert not push_is_reachable(push_geometry("box", 0.12, 0.05, 0.03, pose, 1))
-    assert push_is_reachable(push_geometry("box", 0.12, 0.05, 0.03, pose, 2))
+    assert not push_is_executable(push_geometry("box", 0.12, 0.05, 0.03, pose, 1))
+    assert push_is_executable(push_geometry("box", 0.12, 0.05, 0.03, pose, 2))
+
+
+def test_the_margin_is_for_planning_the_executor_checks_the_ik_set():
+    grid = default_map()
+    assert not (grid.grid & ~grid.ik_grid).any()        # the margin only takes points away
+    in_margin = np.array([[0.31, 0.0]])                   # 2 cm short of the near limit
+    assert not grid.is_reachable(in_margin)[0] and grid.is_executable(in_margin)[0]
+    assert not grid.is_executable(np.array([[0.29, 0.0]]))[0]
+    # A box a little nearer the robot than planned: its push from the robot's side starts
+    # inside the margin; the executor still makes it.
+    planned = push_geometry("box", 0.12, 0.05, 0.03, Pose2D(0.42, 0.0, 0.0), 1)
+    observed = push_geometry("box", 0.12, 0.05, 0.03, Pose2D(0.405, 0.0, 0.0), 1)
+    assert grid.is_reachable(ball_path_points(planned)).all()
+    assert not grid.is_reachable(ball_path_points(observed)).all()
+    assert push_is_executable(observed)
 
 
 def test_heights_outside_the_verified_range_are_an_error():
     geometry = push_geometry("box", 0.12, 0.05, 0.03, Pose2D(0.45, 0.0, 0.0), 1,
                              safe_height=0.3)
     with pytest.raises(UnreachableError, match="safe height"):
-        push_is_reachable(geometry)
-
-
-def test_segment_through_the_near_base_hole_is_unreachable():
-    assert segment_is_reachable([0.45, -0.2], [0.45, 0.2])
-    assert not segment_is_reachable([0.25, -0.25], [0.25, 0.25])
+        push_is_executable(geometry)
 
 
 def test_erode_removes_nodes_near_unreachable_ones():

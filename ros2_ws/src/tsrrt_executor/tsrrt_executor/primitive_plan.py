@@ -45,7 +45,7 @@ from tsrrt_executor.push_primitives import (
     safe_transit_height,
     workspace_segments,
 )
-from tsrrt_executor.reachability import push_is_reachable
+from tsrrt_executor.reachability import push_is_executable
 from tsrrt_executor.trajectory import (
     JOINT_MOVE_TOLERANCE,
     TOOL_AXIS_TOLERANCE,
@@ -147,7 +147,7 @@ def plan_primitive(ik: PusherIK, target: TableObject, others: Sequence[TableObje
 def check_push_feasible(geometry: PushGeometry, target: TableObject,
                         others: Sequence[TableObject], settings: ExecutorSettings) -> None:
     """Raise UnreachableError unless the push is reachable and its low path clear."""
-    if not push_is_reachable(geometry, settings.table_height):
+    if not push_is_executable(geometry, settings.table_height):
         raise UnreachableError(
             f"primitive {geometry.primitive} on {target.id!r} at ({target.pose.x:.3f}, "
             f"{target.pose.y:.3f}): the ball path from ({geometry.approach_xy[0]:.3f}, "
