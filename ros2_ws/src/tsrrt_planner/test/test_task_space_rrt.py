@@ -161,3 +161,35 @@ def test_push_constraints_reject_unreachable_and_blocked_pushes(problem):
     assert problem.state_valid(state)
     assert problem.pushes_valid(state, np.array([0]), np.array([2]), np.array([0.002]))[0]
     assert not problem.pushes_valid(state, np.array([0]), np.array([2]), np.array([0.05]))[0]
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_warm_started_plan_is_no_worse_than_its_warm_start(problem, bound, mode):
+    previous = TASK_SPACE_RRT(problem, "tsrrt", seed=3, time_budget_s=None, max_nodes=300,
+                              lower_bound_cost=bound.cost, target=bound.state)
+    # A budget so small that the search alone gets nowhere near the previous plan.
+    cold = TASK_SPACE_RRT(problem, mode, seed=4, time_budget_s=None, max_nodes=5)
+    warm = TASK_SPACE_RRT(problem, mode, seed=4, time_budget_s=None,
+                          max_nodes=len(previous.steps) + 5, warm_start=previous.steps)
+    assert cold.best_cost > previous.best_cost
+    assert warm.best_cost <= previous.best_cost + 1e-12
+    replay(problem, warm)
+
+
+def test_a_warm_start_is_kept_up_to_its_first_invalid_push(problem):
+    previous = TASK_SPACE_RRT(problem, "greedy", seed=0, time_budget_s=None, max_nodes=400)
+    assert len(previous.steps) >= 2
+    first = previous.steps[0]
+    # Pushing a different object with a push that leaves the table is invalid from the start.
+    invalid = replace(first, push_length=problem.max_length * 100)
+    result = TASK_SPACE_RRT(problem, "greedy", seed=0, time_budget_s=None, max_nodes=2,
+                            warm_start=(first, invalid, *previous.steps[1:]))
+    assert result.nodes == 2          # the root and the first push, nothing after the invalid one
+    assert result.best_cost == pytest.approx(float(previous.costs[1]))
+
+
+def test_a_warm_start_with_an_unknown_object_is_an_error(problem):
+    step = TASK_SPACE_RRT(problem, "greedy", seed=0, time_budget_s=None, max_nodes=3).steps[0]
+    with pytest.raises(PlannerError, match="unknown objects \\['teapot'\\]"):
+        TASK_SPACE_RRT(problem, "greedy", time_budget_s=1.0,
+                       warm_start=[replace(step, object_id="teapot")])

@@ -46,7 +46,7 @@ from tsrrt_planner.objectives import Objective, ObjectSet, build_objective
 from tsrrt_planner.reachability import Reachability
 
 MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fitted at 0.05
-REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_reachable samples
+REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_executable samples
 
 
 def out_of_reach(spec: ObjectSpec, reachability: Reachability,

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -213,6 +213,24 @@ class _Search:
             if self.progress is not None:
                 self.progress(ProgressInfo(self.elapsed(), self.tree.size, cost))
         return index
+
+    def follow(self, node: int, path: list[Push]) -> int:
+        """Add the pushes of `path` to the tree from `node`; returns the last node."""
+        for push in path:
+            node = self.add_node(node, self.problem.apply(self.tree.states[node], *push), push)
+        return node
+
+    def warm_start(self, steps: list[Push]) -> None:
+        """Add the longest prefix of `steps` that is valid from the start as a branch of the
+        tree: replanning after a divergence keeps what the last plan knew, and the search
+        only has to improve on it."""
+        node = 0
+        for o, p, length in steps:
+            state = self.tree.states[node]
+            if not self.problem.pushes_valid(state, np.array([o]), np.array([p]),
+                                             np.array([length]))[0]:
+                break
+            node = self.add_node(node, self.problem.apply(state, o, p, length), (o, p, length))
 
     # -------------------------------------------------------------- Eq. 11 and sampling
     def rho(self, states: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -431,7 +449,7 @@ class _GreedySearch(_Search):
     def run(self) -> None:
         problem = self.problem
         lengths = np.full(len(problem.action_objects), problem.nominal_length)
-        node = 0
+        node = self.best   # the root, or the end of the warm start's best prefix
         while True:
             improved = self.best_push(node, lengths)
             if improved is None:
@@ -628,12 +646,6 @@ class _TsrrtSearch(_Search):
                     return self.follow(node, path)
         return None
 
-    def follow(self, node: int, path: list[Push]) -> int:
-        """Add the pushes of `path` to the tree from `node`; returns the last node."""
-        for push in path:
-            node = self.add_node(node, self.problem.apply(self.tree.states[node], *push), push)
-        return node
-
     def steer(self, node: int, target: np.ndarray) -> int:
         """Steer the objects one at a time, in a random order, towards their poses in `target`
         (closed-form push lengths); repeat passes while any object still moves, so an object
@@ -822,7 +834,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
                    time_budget_s: float | None = 10.0, max_nodes: int | None = None,
                    progress: Progress | None = None, cancel: Cancel | None = None,
                    config: PlannerConfig | None = None, lower_bound_cost: float | None = None,
-                   target: np.ndarray | None = None) -> PlanResult:
+                   target: np.ndarray | None = None,
+                   warm_start: Sequence[PlanStep] = ()) -> PlanResult:
     """Plan pushes that lower the objective; returns the best plan found (anytime).
 
     Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
@@ -839,6 +852,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         config: tunables.
         lower_bound_cost: reported in the result for the gap (lower_bound.lower_bound).
         target: tsrrt only: the continuous optimum (n, 3), e.g. lower_bound(...).state.
+        warm_start: a previous plan (e.g. the unexecuted rest of one); its prefix that is
+            valid from the start goes into the tree first, so the result is no worse.
     """
     if mode not in MODES:
         raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
@@ -858,18 +873,27 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
     else:
         weights = np.full(problem.n, problem.scenario.orientation_weight)
+    index = {object_id: i for i, object_id in enumerate(problem.objects.ids)}
+    unknown = sorted({step.object_id for step in warm_start} - index.keys())
+    if unknown:
+        raise PlannerError(f"warm start pushes unknown objects {unknown}")
+    warm_pushes = [(index[step.object_id], step.primitive, step.push_length)
+                   for step in warm_start]
     arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
                  weights)
     search: _Search
     try:
         if mode == "greedy":
             search = _GreedySearch(*arguments)
+            search.warm_start(warm_pushes)
             search.run()
         elif mode == "tsrrt":
             search = _TsrrtSearch(*arguments, target=target)
+            search.warm_start(warm_pushes)
             search.run()
         else:
             search = _PaperSearch(*arguments)
+            search.warm_start(warm_pushes)
             search.run(use_gd=mode == "paper")
     except _Stop as stop:
         return search.result(stop.reason, lower_bound_cost)
