@@ -327,6 +327,25 @@ def test_task_loop_replans_after_a_bump() -> None:
     assert report.final_cost < report.start_cost
 
 
+def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
+    import tsrrt_planner.closed_loop as closed_loop
+
+    calls = []
+    real_plan_from = closed_loop.plan_from
+
+    def recording_plan_from(*args, **kwargs):
+        problem, result = real_plan_from(*args, **kwargs)
+        calls.append((kwargs.get("replaced"), result))
+        return problem, result
+
+    monkeypatch.setattr(closed_loop, "plan_from", recording_plan_from)
+    _, report = _task("tset3", seed=0, bump_after=2)
+    assert report.replans >= 1
+    assert calls[0][0] is None
+    replaced, executed = calls[1][0]
+    assert replaced is calls[0][1] and executed == 2   # the bump came after the second push
+
+
 def test_improvement_is_judged_against_the_task_range_when_the_optimum_is_zero() -> None:
     """Figures of a real run (two boxes pushed to points: optimum 0, start 0.16): at a cost of
     0.0018 a plan promised 0.0005 more through nine pushes that went up to 0.22 and back. That

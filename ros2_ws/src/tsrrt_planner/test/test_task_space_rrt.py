@@ -193,3 +193,18 @@ def test_a_warm_start_with_an_unknown_object_is_an_error(problem):
     with pytest.raises(PlannerError, match="unknown objects \\['teapot'\\]"):
         TASK_SPACE_RRT(problem, "greedy", time_budget_s=1.0,
                        warm_start=[replace(step, object_id="teapot")])
+
+
+def test_a_replan_heads_for_the_previous_goal_first(problem, bound):
+    previous = TASK_SPACE_RRT(problem, "tsrrt", seed=3, time_budget_s=None, max_nodes=300,
+                              lower_bound_cost=bound.cost, target=bound.state)
+    # Without a target and with few nodes the search only polishes; given the previous plan's
+    # goal it rearranges there and ends near that plan's cost.
+    alone = TASK_SPACE_RRT(problem, "tsrrt", seed=5, time_budget_s=None, max_nodes=60)
+    guided = TASK_SPACE_RRT(problem, "tsrrt", seed=5, time_budget_s=None, max_nodes=60,
+                            previous_goal=previous.states[-1])
+    assert guided.best_cost < alone.best_cost
+    assert guided.best_cost <= previous.best_cost + 0.05 * abs(previous.best_cost)
+    replay(problem, guided)
+    with pytest.raises(PlannerError, match="previous_goal must have shape"):
+        TASK_SPACE_RRT(problem, "tsrrt", time_budget_s=1.0, previous_goal=np.zeros((2, 3)))

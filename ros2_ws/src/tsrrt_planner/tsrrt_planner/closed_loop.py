@@ -30,9 +30,9 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   was disturbed. Either triggers a replan from the observed state, as does a push the robot
   refuses before moving (ExecutionFailed.blocked: from the observed pose it leaves the reach).
   A replan is warm-started with the rest of the plan it replaces (as far as that is still valid
-  from the observed state) and has the shorter `replanning_budget_s`: a fresh search with a
-  few seconds often lands in a worse basin than the plan it replaces (clean, session 4: first
-  plan 0.111 predicted, the replan after its third push 0.157).
+  from the observed state) and REARRANGEs towards that plan's final state first: a fresh search
+  often lands in a worse basin than the plan it replaces (clean, session 4: first plan 0.111
+  predicted, the fresh replan after its third push 0.157).
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ from tsrrt_planner.model_learning import (
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import plausible_displacement, transfer_efficiency
 from tsrrt_planner.reachability import Reachability
-from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, PlanStep, Progress
+from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress
 
 # A repositioning push must gain at least this much room (m) to be worth a trial.
 REPOSITION_GAIN = 0.005
@@ -396,9 +396,6 @@ class TaskEnvironment(Protocol):
 class TaskSettings:
     planner: str = "tsrrt"
     planning_budget_s: float = 2.0
-    # Replans start from the rest of the plan they replace (TASK_SPACE_RRT's warm start), so
-    # they need less time to improve on it than the first plan needs to find one.
-    replanning_budget_s: float = 2.0
     planning_max_nodes: int | None = None  # a node budget makes planning repeatable
     max_pushes: int = 80
     time_budget_s: float = 600.0
@@ -445,17 +442,23 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
               reachability: Reachability, settings: TaskSettings, lower_bound_cost: float,
               target: np.ndarray | None, cancel: Callable[[], bool],
               progress: Progress | None = None, max_nodes: int | None = None,
-              warm_start: Sequence[PlanStep] = ()) -> tuple[PlanningProblem, PlanResult]:
-    """TASK_SPACE_RRT from the observed state with the current models; a replan (given the
-    rest of the plan it replaces as `warm_start`) gets the replanning budget."""
+              replaced: tuple[PlanResult, int] | None = None
+              ) -> tuple[PlanningProblem, PlanResult]:
+    """TASK_SPACE_RRT from the observed state with the current models. A replan is given the
+    plan it replaces and how many of its pushes were executed (`replaced`): the rest warm-starts
+    the search, and its final state is REARRANGE's first goal."""
     problem = PlanningProblem(scenario_at(scenario, poses), store, reachability,
                               margin=settings.margin)
-    budget = settings.replanning_budget_s if warm_start else settings.planning_budget_s
-    result = TASK_SPACE_RRT(problem, settings.planner, settings.seed, time_budget_s=budget,
+    warm_start, previous_goal = (), None
+    if replaced is not None:
+        plan, executed = replaced
+        warm_start, previous_goal = plan.steps[executed:], plan.states[-1]
+    result = TASK_SPACE_RRT(problem, settings.planner, settings.seed,
+                            time_budget_s=settings.planning_budget_s,
                             max_nodes=max_nodes or settings.planning_max_nodes,
                             progress=progress, cancel=cancel,
                             lower_bound_cost=lower_bound_cost, target=target,
-                            warm_start=warm_start)
+                            warm_start=warm_start, previous_goal=previous_goal)
     return problem, result
 
 
@@ -475,16 +478,15 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
     began = time.monotonic()
     observed = environment.observe()
     report.visited.append(observed)
-    unexecuted: Sequence[PlanStep] = ()   # the rest of a plan a replan replaces
+    replaced: tuple[PlanResult, int] | None = None   # plan a replan replaces, pushes done
     while True:
         if cancelled():
             report.stop_reason = "cancelled"
             return report
         on_event("planning", report)
         problem, result = plan_from(scenario, observed, store, reachability, settings,
-                                    lower_bound_cost, target, cancelled,
-                                    warm_start=unexecuted)
-        unexecuted = ()
+                                    lower_bound_cost, target, cancelled, replaced=replaced)
+        replaced = None
         report.planning_s += result.elapsed_s
         on_plan(result)
         current = float(result.costs[0])
@@ -530,7 +532,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 if report.replans > settings.max_replans:
                     report.stop_reason = "replan budget"
                     return report
-                unexecuted = result.steps[k + 1:]
+                replaced = (result, k + 1)
                 observed = environment.observe()
                 on_event("replanning", report)
                 break
@@ -556,7 +558,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 if report.replans > settings.max_replans:
                     report.stop_reason = "replan budget"
                     return report
-                unexecuted = result.steps[k + 1:]
+                replaced = (result, k + 1)
                 on_event("replanning", report)
                 break
 

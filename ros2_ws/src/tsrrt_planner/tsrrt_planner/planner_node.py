@@ -233,10 +233,7 @@ class PlannerNode(Node):
             read_only=True))
         declare("planner", "tsrrt", ParameterDescriptor(
             description=f"default planner: one of {list(MODES)}"))
-        declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time for a PlanTask or a "
-                                                             "RunTask's first plan, s"))
-        declare("replanning_budget_s", 2.0, _float(0.05, 600.0, "time for a RunTask's "
-                                                                 "warm-started replans, s"))
+        declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
@@ -536,7 +533,6 @@ class PlannerNode(Node):
             self._check_goal_value(field, value, parameter)
         return TaskSettings(
             planner=planner, planning_budget_s=budget_s or self._param("planning_budget_s"),
-            replanning_budget_s=self._param("replanning_budget_s"),
             max_pushes=max_pushes or self._param("max_pushes"),
             time_budget_s=time_budget_s or self._param("time_budget_s"),
             convergence=self._param("convergence"),

@@ -488,8 +488,10 @@ class _TsrrtSearch(_Search):
     closed form), and POLISHes the best node with line searches on the objective.
     """
 
-    def __init__(self, *args, target: np.ndarray | None, **kwargs) -> None:
+    def __init__(self, *args, target: np.ndarray | None,
+                 previous_goal: np.ndarray | None = None, **kwargs) -> None:
         super().__init__(*args, **kwargs)
+        self.previous_goal = previous_goal
         self.groups = interchangeable_groups(self.problem)
         self.length_grid = np.geomspace(self.problem.min_length, self.problem.max_length,
                                         self.config.length_grid)
@@ -500,6 +502,9 @@ class _TsrrtSearch(_Search):
                             float(self.problem.objective.cost(target)))
 
     def run(self) -> None:
+        if self.previous_goal is not None:
+            # a replan: where the replaced plan was going is known to be reachable by pushing
+            self.polish(self.rearrange(0, self.previous_goal))
         if self.targets:
             self.polish(self.rearrange(0, self.choose_target(self.problem.start)))
         found = self.directgd(0)
@@ -835,7 +840,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
                    progress: Progress | None = None, cancel: Cancel | None = None,
                    config: PlannerConfig | None = None, lower_bound_cost: float | None = None,
                    target: np.ndarray | None = None,
-                   warm_start: Sequence[PlanStep] = ()) -> PlanResult:
+                   warm_start: Sequence[PlanStep] = (),
+                   previous_goal: np.ndarray | None = None) -> PlanResult:
     """Plan pushes that lower the objective; returns the best plan found (anytime).
 
     Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
@@ -854,6 +860,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         target: tsrrt only: the continuous optimum (n, 3), e.g. lower_bound(...).state.
         warm_start: a previous plan (e.g. the unexecuted rest of one); its prefix that is
             valid from the start goes into the tree first, so the result is no worse.
+        previous_goal: tsrrt only: the final state (n, 3) of the plan this one replaces;
+            REARRANGE steers there first.
     """
     if mode not in MODES:
         raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
@@ -866,9 +874,10 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     config = config or PlannerConfig()
     if not 0.0 <= config.epsilon <= 1.0:
         raise PlannerError(f"epsilon must be within [0, 1], got {config.epsilon}")
-    if target is not None and np.shape(target) != problem.start.shape:
-        raise PlannerError(f"target must have shape {problem.start.shape}, got "
-                           f"{np.shape(target)}")
+    for name, state in (("target", target), ("previous_goal", previous_goal)):
+        if state is not None and np.shape(state) != problem.start.shape:
+            raise PlannerError(f"{name} must have shape {problem.start.shape}, got "
+                               f"{np.shape(state)}")
     if mode == "tsrrt":
         weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
     else:
@@ -888,7 +897,9 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
             search.warm_start(warm_pushes)
             search.run()
         elif mode == "tsrrt":
-            search = _TsrrtSearch(*arguments, target=target)
+            search = _TsrrtSearch(*arguments, target=target,
+                                  previous_goal=None if previous_goal is None
+                                  else np.asarray(previous_goal, dtype=float))
             search.warm_start(warm_pushes)
             search.run()
         else:
