@@ -28,7 +28,7 @@ import numpy as np
 import rclpy
 import yaml
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
 from tsrrt_common.camera import OverheadCamera
@@ -66,7 +66,7 @@ class DemoClient(Node):
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.create_subscription(Image, "/camera/image_raw", self._on_image,
-                                 qos_profile_sensor_data)
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
         self.create_subscription(ObjectStateArray, "/sim/object_states", self._on_truth, 10)
         self.create_subscription(ObjectStateArray, "/planner/observed", self._on_observed, 50)
         self.create_subscription(ForwardModelArray, "/planner/models", self._on_models, latched)

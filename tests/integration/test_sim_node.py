@@ -25,7 +25,6 @@ from rclpy.qos import (  # noqa: E402
     DurabilityPolicy,
     QoSProfile,
     ReliabilityPolicy,
-    qos_profile_sensor_data,
 )
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, JointState  # noqa: E402
@@ -51,8 +50,10 @@ class SimProbe:
             Clock, "/clock", QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
             transform=lambda m: m.clock.sec + m.clock.nanosec * 1e-9)
         self.joint_states = probe.record(JointState, "/joint_states")
-        self.images = probe.record(Image, "/camera/image_raw", qos_profile_sensor_data)
-        self.depths = probe.record(Image, "/camera/depth/image_raw", qos_profile_sensor_data)
+        # Reliable, as the sim offers: best effort loses most frames of this size.
+        images = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.images = probe.record(Image, "/camera/image_raw", images)
+        self.depths = probe.record(Image, "/camera/depth/image_raw", images)
         self.camera_infos = probe.record(
             CameraInfo, "/camera/camera_info",
             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -149,6 +150,13 @@ def test_good_trajectory_succeeds_with_feedback(probe):
     assert result.error_code == Result.SUCCESSFUL, result.error_string
     assert 0.0 < result.tool_rms_error < 1e-3
     assert feedback and list(feedback[-1].feedback.joint_names) == list(ARM_JOINT_NAMES)
+    end = result.end_stamp.sec + result.end_stamp.nanosec * 1e-9
+    last_feedback = feedback[-1].feedback.header.stamp
+    assert end >= last_feedback.sec + last_feedback.nanosec * 1e-9 > 0.0
+    # The sim renders a frame the moment a trajectory ends: stamped at or after its end.
+    assert probe.spin_until(lambda: any(
+        m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 >= end for m in probe.images),
+        timeout=5.0)
     final = probe.joint_states[-1]
     probe.spin_until(lambda: probe.joint_states[-1] is not final, timeout=5.0)
     np.testing.assert_allclose(probe.joint_states[-1].position, READY_POSTURE, atol=0.01)

@@ -56,9 +56,9 @@ class Camera:
 
     def __init__(self, probe) -> None:
         self.probe = probe
-        self.colour = probe.create_publisher(Image, "/camera/image_raw", qos_profile_sensor_data)
-        self.depth = probe.create_publisher(Image, "/camera/depth/image_raw",
-                                            qos_profile_sensor_data)
+        images = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)   # as perception asks
+        self.colour = probe.create_publisher(Image, "/camera/image_raw", images)
+        self.depth = probe.create_publisher(Image, "/camera/depth/image_raw", images)
         self.info = probe.create_publisher(CameraInfo, "/camera/camera_info",
                                            qos_profile_sensor_data)
         self.seconds = 0

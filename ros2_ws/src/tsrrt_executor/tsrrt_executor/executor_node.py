@@ -434,7 +434,10 @@ class ExecutorNode(Node):
                              f"{controller_result.tool_max_error * 1000:.1f} mm exceeds "
                              f"max_tool_error {self._value('max_tool_error') * 1000:.1f} mm")
         self._feedback(goal_handle, Feedback.PHASE_SETTLING, 0.0)
-        motion_end = self._robot_time()
+        # The controller's end stamp, not a later clock reading: the sim renders a frame the
+        # moment a trajectory ends, stamped after the end but before the result gets here.
+        end = controller_result.end_stamp
+        motion_end = end.sec + end.nanosec * 1e-9 or self._robot_time()
         after, _ = self._settled_observation(goal_handle, goal.object_id, motion_end)
         self.still_since = motion_end
         result.after = after
