@@ -106,7 +106,7 @@ def shifted(delta: float, joint: int = 0) -> list[float]:
     return q
 
 
-def test_clock_runs_ahead_of_the_wall_clock(probe):
+def test_idle_clock_runs_ahead_of_the_wall_clock_at_the_idle_pace(probe):
     assert probe.spin_until(lambda: len(probe.clock) > 10), "no /clock"
     probe.clock.clear()
     started = time.monotonic()
@@ -116,7 +116,8 @@ def test_clock_runs_ahead_of_the_wall_clock(probe):
     assert all(b > a for a, b in zip(probe.clock, probe.clock[1:], strict=False))
     real_time_factor = (probe.clock[-1] - probe.clock[0]) / wall
     print(f"sim_node real-time factor with a camera subscriber: {real_time_factor:.1f}")
-    assert real_time_factor > 1.0          # unlimited by default; the number is the bench's job
+    # idle_real_time_factor (10) with the arm still; how fast a trajectory runs is the bench's
+    assert 1.0 < real_time_factor < 10.0 * 1.2
 
 
 def test_joint_states_name_the_arm_joints(probe):

@@ -105,6 +105,7 @@ class SimNode(Node):
         p = self._parameter
         self.physics_hz = p("physics_hz")
         self.real_time_factor = p("real_time_factor")
+        self.idle_real_time_factor = p("idle_real_time_factor")
         self.tick_steps = max(1, round(self.physics_hz / p("clock_rate_hz")))
         self.joint_state_period = 1.0 / p("joint_state_rate_hz")
         self.publish_wall_period = 1.0 / p("max_publish_wall_hz")
@@ -178,6 +179,9 @@ class SimNode(Node):
             description="open the PyBullet window (needs a display)", read_only=True))
         number("real_time_factor", 0.0, 0.0, 1000.0,
                "simulated seconds per wall second; 0 runs as fast as possible")
+        number("idle_real_time_factor", 10.0, 0.0, 1000.0,
+               "with real_time_factor 0: the pace while no trajectory runs (0: as fast as "
+               "possible then too); the CPU goes to rendering and the other nodes")
         number("physics_hz", 240.0, 60.0, 2000.0, "physics steps per simulated second")
         number("clock_rate_hz", 40.0, 1.0, 1000.0,
                "/clock messages per simulated second (rounded to whole physics steps)")
@@ -244,6 +248,7 @@ class SimNode(Node):
     def _physics_loop(self) -> None:
         world = self.world
         wall_origin, sim_origin = time.monotonic(), world.sim_time
+        pace = self._pace()
         next_joint_state = world.sim_time
         next_frame_wall = next_publish_wall = time.monotonic()
         try:
@@ -270,8 +275,10 @@ class SimNode(Node):
                     next_frame_wall = max(next_frame_wall + self.camera_period, now_wall)
                     self._frame_requested.clear()
                     self._start_frame()
-                if self.real_time_factor > 0:
-                    target = wall_origin + (now_sim - sim_origin) / self.real_time_factor
+                if self._pace() != pace:
+                    pace, wall_origin, sim_origin = self._pace(), time.monotonic(), now_sim
+                if pace > 0:
+                    target = wall_origin + (now_sim - sim_origin) / pace
                     lag = time.monotonic() - target
                     if lag > MAX_PACING_LAG_S:
                         wall_origin, sim_origin = time.monotonic(), now_sim
@@ -283,6 +290,14 @@ class SimNode(Node):
             self.get_logger().fatal(f"physics loop failed: {error!r}")
             rclpy.try_shutdown(context=self.context)
             raise
+
+    def _pace(self) -> float:
+        """Simulated seconds per wall second now (0: as fast as possible). At full speed an idle
+        arm gets idle_real_time_factor: simulating 100 s of a still table per wall second
+        took the core that renders the frame everyone is waiting for."""
+        if self.real_time_factor > 0 or self.world.controller.active is not None:
+            return self.real_time_factor
+        return self.idle_real_time_factor
 
     def _publish_joint_state(self) -> None:
         state = self.world.joint_state()
