@@ -471,6 +471,7 @@ def test_a_plan_that_detours_far_more_than_it_gains_is_not_executed(monkeypatch)
     monkeypatch.setattr(closed_loop, "plan_from", plan([0.2, -0.05]))
     report = run_task(scenario, store, robot, AnnulusReachability(), settings, -1.0)
     assert report.converged and report.pushes == 0
+    assert report.predicted_cost == report.final_cost   # the detour was not executed
     monkeypatch.setattr(closed_loop, "plan_from", plan([-0.02, -0.05]))
     report = run_task(scenario, store, robot, AnnulusReachability(), settings, -1.0)
     assert report.pushes == 1

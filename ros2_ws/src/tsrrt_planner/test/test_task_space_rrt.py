@@ -15,6 +15,7 @@ from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
     MODES,
+    PlanStep,
     TASK_SPACE_RRT,
     interchangeable_groups,
     match_to,
@@ -208,3 +209,21 @@ def test_a_replan_heads_for_the_previous_goal_first(problem, bound):
     replay(problem, guided)
     with pytest.raises(PlannerError, match="previous_goal must have shape"):
         TASK_SPACE_RRT(problem, "tsrrt", time_budget_s=1.0, previous_goal=np.zeros((2, 3)))
+
+
+def test_a_warm_start_ends_at_its_lowest_cost(problem):
+    previous = TASK_SPACE_RRT(problem, "greedy", seed=0, time_budget_s=None, max_nodes=400)
+    assert previous.stop_reason == "converged"    # at a local minimum: every push goes uphill
+    final, index = previous.states[-1], {o: i for i, o in enumerate(problem.objects.ids)}
+    uphill = next(
+        PlanStep(problem.objects.ids[o], int(p), problem.nominal_length)
+        for o, p in zip(problem.action_objects, problem.action_primitives, strict=True)
+        if problem.pushes_valid(final, np.array([o]), np.array([p]),
+                                np.array([problem.nominal_length]))[0])
+    assert problem.objective.cost(problem.apply(
+        final, index[uphill.object_id], uphill.primitive, uphill.push_length)) > (
+            previous.best_cost)
+    result = TASK_SPACE_RRT(problem, "greedy", seed=0, time_budget_s=None, max_nodes=400,
+                            warm_start=(*previous.steps, uphill))
+    assert result.nodes == len(previous.steps) + 1     # the uphill push was left out
+    assert result.best_cost == pytest.approx(previous.best_cost)

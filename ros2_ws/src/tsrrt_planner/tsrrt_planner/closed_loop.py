@@ -493,10 +493,11 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         if math.isnan(report.start_cost):
             report.start_cost = current
         report.final_cost = current
-        report.predicted_cost = result.best_cost
         if not report.costs:
             report.costs.append(current)
         steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings)
+        # what executing the chosen part of the plan predicts (not the unexecuted rest's best)
+        report.predicted_cost = float(result.costs[steps])
         improvement = current - float(result.costs[steps])
         if steps == 0 or _negligible(improvement, current, report, settings):
             report.converged = True

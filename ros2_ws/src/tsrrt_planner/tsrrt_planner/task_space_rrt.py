@@ -221,16 +221,20 @@ class _Search:
         return node
 
     def warm_start(self, steps: list[Push]) -> None:
-        """Add the longest prefix of `steps` that is valid from the start as a branch of the
-        tree: replanning after a divergence keeps what the last plan knew, and the search
-        only has to improve on it."""
-        node = 0
+        """Add the prefix of `steps` that is valid from the start, up to its lowest cost, as a
+        branch of the tree: replanning after a divergence keeps what the last plan knew. Not
+        beyond its lowest cost: from a state the old plan did not expect (an object bumped
+        away), its pushes may wander off, and a branch that ends uphill of its best is a
+        detour the closed loop refuses to execute (steps_worth_executing)."""
+        problem, state, valid = self.problem, self.tree.states[0], []
         for o, p, length in steps:
-            state = self.tree.states[node]
-            if not self.problem.pushes_valid(state, np.array([o]), np.array([p]),
-                                             np.array([length]))[0]:
+            if not problem.pushes_valid(state, np.array([o]), np.array([p]),
+                                        np.array([length]))[0]:
                 break
-            node = self.add_node(node, self.problem.apply(state, o, p, length), (o, p, length))
+            state = problem.apply(state, o, p, length)
+            valid.append(((o, p, length), float(problem.objective.cost(state))))
+        costs = [self.tree.cost[0]] + [cost for _, cost in valid]
+        self.follow(0, [push for push, _ in valid[:int(np.argmin(costs))]])
 
     # -------------------------------------------------------------- Eq. 11 and sampling
     def rho(self, states: np.ndarray, target: np.ndarray) -> np.ndarray:
