@@ -15,8 +15,8 @@ from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
     MODES,
-    PlanStep,
     TASK_SPACE_RRT,
+    PlanStep,
     interchangeable_groups,
     match_to,
 )
