@@ -863,7 +863,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         lower_bound_cost: reported in the result for the gap (lower_bound.lower_bound).
         target: tsrrt only: the continuous optimum (n, 3), e.g. lower_bound(...).state.
         warm_start: a previous plan (e.g. the unexecuted rest of one); its prefix that is
-            valid from the start goes into the tree first, so the result is no worse.
+            valid from the start, up to its lowest cost, goes into the tree first, so the
+            result is no worse than that.
         previous_goal: tsrrt only: the final state (n, 3) of the plan this one replaces;
             REARRANGE steers there first.
     """
