@@ -37,6 +37,7 @@ import time
 
 import numpy as np
 from builtin_interfaces.msg import Duration
+from builtin_interfaces.msg import Time as TimeMessage
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -102,6 +103,11 @@ def trajectory_message(trajectory: TimedJointTrajectory) -> JointTrajectory:
             positions=q.tolist(), velocities=qd.tolist(), accelerations=qdd.tolist(),
             time_from_start=Duration(sec=int(seconds), nanosec=int(round((t - seconds) * 1e9)))))
     return message
+
+
+def _seconds(stamp: TimeMessage) -> float:
+    """A builtin_interfaces/Time in seconds (robot time)."""
+    return stamp.sec + stamp.nanosec * 1e-9
 
 
 def _float_range(low: float, high: float, description: str) -> ParameterDescriptor:
@@ -200,7 +206,7 @@ class ExecutorNode(Node):
         index = {name: i for i, name in enumerate(message.name)}
         if all(name in index for name in ARM_JOINT_NAMES):
             positions = np.array([message.position[index[name]] for name in ARM_JOINT_NAMES])
-            stamp = message.header.stamp.sec + message.header.stamp.nanosec * 1e-9
+            stamp = _seconds(message.header.stamp)
             with self.lock:
                 self.joint_positions = positions
                 self.joint_state_arrival = time.monotonic()
@@ -229,18 +235,27 @@ class ExecutorNode(Node):
                 return False
         return True
 
-    def _fresh_joint_positions(self, newer_than: float | None = None) -> np.ndarray:
+    def _fresh_joint_positions(self, newer_than: float | None = None,
+                               stamped_after: float | None = None) -> np.ndarray:
         """Joint positions from a /joint_states message that arrived less than server_timeout
-        ago (and after `newer_than`, monotonic, if given), waiting up to server_timeout."""
+        ago (and after `newer_than`, monotonic, and stamped at or after `stamped_after`, robot
+        time, if given), waiting up to server_timeout.
+
+        A trajectory planned from positions read before the last motion ended starts away
+        from the arm; the controller aborts it at t = 0 (seen: 0.2 rad, when the next goal came
+        40 ms after the last result and the executor's threads had not taken a newer message).
+        """
         timeout = self._value("server_timeout")
         deadline = time.monotonic() + timeout
         while True:
             with self.lock:
                 arrival, positions = self.joint_state_arrival, self.joint_positions
+                stamp = self.joint_state_stamp
                 self.joint_state_event.clear()
             now = time.monotonic()
             if positions is not None and now - arrival < timeout and (
-                    newer_than is None or arrival > newer_than):
+                    newer_than is None or arrival > newer_than) and (
+                    stamped_after is None or stamp >= stamped_after):
                 return positions
             if now > deadline:
                 raise GoalFailed(Result.CONTROLLER_UNAVAILABLE,
@@ -319,7 +334,7 @@ class ExecutorNode(Node):
                 problem = (f"{object_id!r} is lost or missing in the settled observation (hidden,"
                            " or off the table)")
             else:
-                seen = state.last_seen.sec + state.last_seen.nanosec * 1e-9
+                seen = _seconds(state.last_seen)
                 if seen >= not_before:
                     return state, states
                 problem = (f"the settled observation (t = {seen:.2f} s) is older than the "
@@ -380,7 +395,9 @@ class ExecutorNode(Node):
     def _run(self, goal_handle, result: ExecutePrimitive.Result) -> None:
         goal = goal_handle.request
         self._feedback(goal_handle, Feedback.PHASE_PLANNING, 0.0)
-        q_current = self._fresh_joint_positions()
+        q_current = (self._fresh_joint_positions(newer_than=time.monotonic())
+                     if self.still_since is None
+                     else self._fresh_joint_positions(stamped_after=self.still_since))
         self._require_controller()
         state, latest = self._perceived_object(goal.object_id)
         settings = self._settings()
@@ -402,7 +419,9 @@ class ExecutorNode(Node):
         others = [table_object(s) for i, s in before_states.items() if i != goal.object_id]
         try:
             plan = plan_primitive(self.ik, table_object(target), others, int(goal.primitive),
-                                  float(goal.push_length), self._fresh_joint_positions(),
+                                  float(goal.push_length),
+                                  self._fresh_joint_positions(stamped_after=_seconds(
+                                      target.last_seen)),
                                   settings)
         except PrimitiveError as error:
             raise GoalFailed(Result.INVALID_GOAL, str(error)) from None
@@ -424,7 +443,8 @@ class ExecutorNode(Node):
             # The arm stopped where the controller gave up, maybe in contact and in the
             # camera's view: take it back out so the caller can observe and carry on.
             try:
-                self._return_to_observe(goal_handle, self._fresh_joint_positions(),
+                self._return_to_observe(goal_handle,
+                                        self._fresh_joint_positions(newer_than=time.monotonic()),
                                         plan.geometry.safe_z, settings)
             except GoalFailed as failure:
                 problem += f"; then moving the arm out of view failed: {failure}"
@@ -436,8 +456,7 @@ class ExecutorNode(Node):
         self._feedback(goal_handle, Feedback.PHASE_SETTLING, 0.0)
         # The controller's end stamp, not a later clock reading: the sim renders a frame the
         # moment a trajectory ends, stamped after the end but before the result gets here.
-        end = controller_result.end_stamp
-        motion_end = end.sec + end.nanosec * 1e-9 or self._robot_time()
+        motion_end = _seconds(controller_result.end_stamp) or self._robot_time()
         after, _ = self._settled_observation(goal_handle, goal.object_id, motion_end)
         self.still_since = motion_end
         result.after = after

@@ -237,7 +237,7 @@ class PlannerNode(Node):
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
-        declare("max_pushes", 80, _integer(1, 10000, "pushes a RunTask may execute"))
+        declare("max_pushes", 150, _integer(1, 10000, "pushes a RunTask may execute"))
         declare("time_budget_s", 900.0, _float(1.0, 86400.0, "wall time a RunTask may take"))
         declare("convergence", 0.01, _float(0.0, 1.0,
                                              "relative predicted improvement to stop at"))
