@@ -243,7 +243,7 @@ class ExecutorNode(Node):
 
         A trajectory planned from positions read before the last motion ended starts away
         from the arm; the controller aborts it at t = 0 (seen: 0.2 rad, when the next goal came
-        40 ms after the last result and the executor's threads had not taken a newer message).
+        40 ms after the last result, and when a test moved the arm just before its goal).
         """
         timeout = self._value("server_timeout")
         deadline = time.monotonic() + timeout
@@ -395,9 +395,8 @@ class ExecutorNode(Node):
     def _run(self, goal_handle, result: ExecutePrimitive.Result) -> None:
         goal = goal_handle.request
         self._feedback(goal_handle, Feedback.PHASE_PLANNING, 0.0)
-        q_current = (self._fresh_joint_positions(newer_than=time.monotonic())
-                     if self.still_since is None
-                     else self._fresh_joint_positions(stamped_after=self.still_since))
+        # Read after the goal came: the arm may have moved since this node last moved it.
+        q_current = self._fresh_joint_positions(newer_than=time.monotonic())
         self._require_controller()
         state, latest = self._perceived_object(goal.object_id)
         settings = self._settings()
