@@ -12,8 +12,8 @@ surrounding nodes do. Two sets are kept:
   elsewhere when the push is executed;
 - *executable* (`is_executable`, what the executor checks before moving) is the IK set itself:
   that room is for the executor to use. Refusing a planned push because the observed pose is
-  5 mm off the predicted one, well inside the margin, strands the object against the reach
-  limit (it did in session 3's runs: a plate at x = 0.35 m, every push on it refused).
+  a few millimetres off the predicted one, well inside the margin, throws the plan away for
+  nothing (a replan, and near the reach limit maybe no push left for that object).
 
 The grid is computed by `python -m tsrrt_executor.reachability --write` (about 25 s) and
 shipped as `reachability_grid.yaml` beside this module; it records a digest of the kinematics
