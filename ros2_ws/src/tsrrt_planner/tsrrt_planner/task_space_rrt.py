@@ -896,21 +896,20 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
                  weights)
     search: _Search
+    if mode == "greedy":
+        search = _GreedySearch(*arguments)
+    elif mode == "tsrrt":
+        search = _TsrrtSearch(*arguments, target=target,
+                              previous_goal=None if previous_goal is None
+                              else np.asarray(previous_goal, dtype=float))
+    else:
+        search = _PaperSearch(*arguments)
     try:
-        if mode == "greedy":
-            search = _GreedySearch(*arguments)
-            search.warm_start(warm_pushes)
-            search.run()
-        elif mode == "tsrrt":
-            search = _TsrrtSearch(*arguments, target=target,
-                                  previous_goal=None if previous_goal is None
-                                  else np.asarray(previous_goal, dtype=float))
-            search.warm_start(warm_pushes)
-            search.run()
-        else:
-            search = _PaperSearch(*arguments)
-            search.warm_start(warm_pushes)
+        search.warm_start(warm_pushes)
+        if isinstance(search, _PaperSearch):
             search.run(use_gd=mode == "paper")
+        else:
+            search.run()
     except _Stop as stop:
         return search.result(stop.reason, lower_bound_cost)
     raise AssertionError("searches only end by _Stop")
