@@ -232,9 +232,12 @@ class _Search:
                                         np.array([length]))[0]:
                 break
             state = problem.apply(state, o, p, length)
-            valid.append(((o, p, length), float(problem.objective.cost(state))))
-        costs = [self.tree.cost[0]] + [cost for _, cost in valid]
-        self.follow(0, [push for push, _ in valid[:int(np.argmin(costs))]])
+            valid.append(((o, p, length), state))
+        costs = [self.tree.cost[0], *problem.objective.cost(
+            np.array([state for _, state in valid]).reshape(-1, *state.shape))]
+        node = 0
+        for push, state in valid[:int(np.argmin(costs))]:
+            node = self.add_node(node, state, push)
 
     # -------------------------------------------------------------- Eq. 11 and sampling
     def rho(self, states: np.ndarray, target: np.ndarray) -> np.ndarray:
