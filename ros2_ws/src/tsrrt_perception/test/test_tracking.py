@@ -128,6 +128,66 @@ def test_covered_object_is_occluded_with_its_last_pose_then_reacquired(classes, 
     assert state.status is TrackStatus.TRACKED and state.pose.x == 0.53
 
 
+def test_plates_pushed_together_keep_their_ids_while_the_arm_still_hides_one(classes,
+                                                                              camera_view):
+    """A push moves plate_1 5 cm into plate_2, which moves 5 cm on. While the arm still covers
+    plate_2, the one detection is as close to plate_2's last pose as to plate_1's: a tie must not
+    decide whose it is. Once both are seen, each gets its own."""
+    plate = classes["plate"]
+    tracker = ObjectTracker(classes)
+    tracker.update([detection(plate, 0.40, 0.0), detection(plate, 0.50, 0.0)], 0.0,
+                   empty_frame(camera_view))
+    arm = box_corners(0.25, 0.12) + np.array([0.45, 0.0])
+    tracker.update([], 2.0, frame_with_block(camera_view, arm, 0.3))
+    assert {e.status for e in by_id(tracker).values()} == {TrackStatus.OCCLUDED}
+    still_covering_plate_2 = frame_with_block(
+        camera_view, box_corners(0.12, 0.12) + np.array([0.55, 0.0]), 0.3)
+    plate_1_seen = frame_with_object(camera_view, plate, 0.45, 0.0)
+    frame = HeightImage(np.maximum(still_covering_plate_2.heights, plate_1_seen.heights),
+                        camera_view, 0.0)
+    events = tracker.update([detection(plate, 0.45, 0.0)], 4.0, frame)
+    estimates = by_id(tracker)
+    assert estimates["plate_1"].pose.x == 0.40 and estimates["plate_2"].pose.x == 0.50
+    assert list(estimates) == ["plate_1", "plate_2"] and events == []
+    tracker.update([detection(plate, 0.55, 0.0), detection(plate, 0.45, 0.0)], 6.0,
+                   empty_frame(camera_view))
+    estimates = by_id(tracker)
+    assert estimates["plate_1"].pose.x == 0.45 and estimates["plate_2"].pose.x == 0.55
+
+
+def test_lost_objects_take_back_the_detections_of_least_total_distance(classes, camera_view):
+    """Two plates bumped out of their places at once: plate_2's old place is nearest to both new
+    detections, but handing it the first one would give plate_1 the other, 12 cm away."""
+    plate = classes["plate"]
+    tracker = ObjectTracker(classes)
+    tracker.update([detection(plate, 0.30, 0.0), detection(plate, 0.45, 0.0)], 0.0,
+                   empty_frame(camera_view))
+    tracker.update([], 0.1, empty_frame(camera_view))
+    assert {e.status for e in by_id(tracker).values()} == {TrackStatus.LOST}
+    events = tracker.update([detection(plate, 0.40, 0.2), detection(plate, 0.44, 0.2)], 0.2,
+                            empty_frame(camera_view))
+    estimates = by_id(tracker)
+    assert estimates["plate_1"].pose.x == 0.40 and estimates["plate_2"].pose.x == 0.44
+    assert sorted(events) == ["plate_1 found again 224 mm from where it was lost, at "
+                              "(0.400, 0.200)",
+                              "plate_2 found again 200 mm from where it was lost, at "
+                              "(0.440, 0.200)"]
+
+
+def test_identity_changes_are_reported_with_their_reason(classes, camera_view):
+    remote = classes["remote"]
+    tracker = ObjectTracker(classes, expected=[ExpectedObject("tv", "remote",
+                                                              Pose2D(0.45, 0.0, 0.0))])
+    assert tracker.update([detection(remote, 0.45, 0.01)], 0.0, empty_frame(camera_view)) \
+        == ["tv first seen at (0.450, 0.010)"]
+    assert tracker.update([], 0.1, empty_frame(camera_view)) \
+        == ["tv lost at (0.450, 0.010): 100 % of its footprint is bare table"]
+    assert tracker.update([detection(remote, 0.45, 0.2), detection(remote, 0.3, 0.2)], 0.2,
+                          empty_frame(camera_view)) \
+        == ["tv found again 190 mm from where it was lost, at (0.450, 0.200)",
+            "remote_1: new object at (0.300, 0.200)"]
+
+
 @pytest.mark.parametrize("frame_interval, same_track", [(0.1, False), (5.0, True)])
 def test_push_between_sparse_frames_keeps_the_id(classes, camera_view, frame_interval,
                                                  same_track):

@@ -262,7 +262,7 @@ class PerceptionNode(Node):
             return
         stamp = Time.from_msg(depth_msg.header.stamp).nanoseconds * 1e-9
         with self.lock:
-            self.tracker.update(result.detections, stamp, result.height_image)
+            events = self.tracker.update(result.detections, stamp, result.height_image)
             self.last_frame_arrival = time.monotonic()
             self.latest_settled = ((stamp, self.tracker.estimates())
                                    if self.tracker.settled() else None)
@@ -271,6 +271,8 @@ class PerceptionNode(Node):
                         and self.tracker.settled(request.max_speed):
                     request.result = self.tracker.estimates()
                     request.done.set()
+        for event in events:
+            self.get_logger().info(event)
         self._publish()
 
     def _on_timer(self) -> None:

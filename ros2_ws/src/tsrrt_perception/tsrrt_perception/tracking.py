@@ -1,12 +1,14 @@
 """Stable identities, symmetry-consistent headings and honest status for detected objects.
 
 Each frame's valid detections are assigned to known objects by predicted position and class
-(Hungarian assignment). Headings are unwrapped modulo each class's symmetry, so a box turning by a
-degree never reads as a jump of pi. An object that is not seen keeps its last pose but is marked:
-OCCLUDED when something much higher stands over its last footprint (the arm), LOST when its
-footprint leaves the view or it has been gone too long, STALE otherwise; a wrong pose is never
-reported as TRACKED. Settling (all objects seen and still over a window) lets a learner measure
-a push's displacement.
+(Hungarian assignment); a detection that an unseen object of its class would explain almost as
+well waits for a frame that tells them apart (two identical plates pushed together, one still
+under the arm, must not swap names on a tie). Headings are unwrapped modulo each class's symmetry,
+so a box turning by a degree never reads as a jump of pi. An object that is not seen keeps its
+last pose but is marked: OCCLUDED when something much higher stands over its last footprint (the
+arm), LOST when its footprint leaves the view or it has been gone too long, STALE otherwise; a
+wrong pose is never reported as TRACKED. Settling (all objects seen and still over a window) lets
+a learner measure a push's displacement.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import TypeVar
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -54,6 +57,10 @@ class TrackerParams:
     # 5 cm push, so a tracked object is then gated like an unseen one.
     tracked_gate_interval: float = 0.5
     angle_cost: float = 0.01            # m of assignment cost per radian of heading mismatch
+    # m: a detection that an unmatched track of its class could explain almost as well (a push
+    # moved two touching plates, the arm still hides one) is left unassigned for the frame,
+    # rather than letting a tie decide which identity it gets
+    ambiguity_margin: float = 0.02
     occlusion_margin: float = 0.01      # m above an object's top that counts as covering it
     occlusion_min_fraction: float = 0.02  # share of the footprint that must be covered
     # share of an unseen object's footprint that must show the bare table for it to have left
@@ -138,6 +145,9 @@ class _Track:
         return footprint_polygon(self.cls.shape, self.length, self.width, self.pose, disc_sides=12)
 
 
+_Posed = TypeVar("_Posed", ExpectedObject, _Track)
+
+
 class ObjectTracker:
     """Keeps identities and statuses of tabletop objects across frames (ROS-free)."""
 
@@ -160,8 +170,13 @@ class ObjectTracker:
 
     # ------------------------------------------------------------------------------- update
     def update(self, detections: Sequence[Detection], stamp: float,
-               height_image: HeightImage | None = None) -> None:
-        """Fold one frame's detections (taken at `stamp`, seconds) into the tracks."""
+               height_image: HeightImage | None = None) -> list[str]:
+        """Fold one frame's detections (taken at `stamp`, seconds) into the tracks.
+
+        Returns:
+            what changed about identities (an object first seen, lost and why, found again, a
+            new id), one line each, for the node's log: these are what a wrong plan is traced to.
+        """
         valid = [d for d in detections if d.pose_valid]
         active = [t for t in self.tracks if t.status is not TrackStatus.LOST]
         matched_tracks, unmatched = self._assign(active, valid, stamp)
@@ -169,17 +184,25 @@ class ObjectTracker:
             track.observe(detection, stamp)
         seen = {id(track) for track, _ in matched_tracks}
         obstructions = [d for d in detections if not d.pose_valid]
+        events = []
         for track in self.tracks:
             if id(track) not in seen and track.last_seen is not None \
                     and track.last_seen != stamp:
-                track.status = self._unseen_status(track, stamp, height_image, obstructions)
+                was_lost = track.status is TrackStatus.LOST
+                track.status, why = self._unseen_status(track, stamp, height_image, obstructions)
+                if track.status is TrackStatus.LOST and not was_lost:
+                    events.append(f"{track.id} lost at ({track.pose.x:.3f}, {track.pose.y:.3f}): "
+                                  f"{why}")
         # After the statuses: an object that left its place (a bump, a scenario reload) is LOST
         # by now, and the detection where it went takes its id back.
-        self._name_new(unmatched, stamp)
+        events += self._name_new(unmatched, stamp)
         self.last_frame = stamp
+        return events
 
     def _assign(self, tracks: list[_Track], detections: list[Detection],
                 stamp: float) -> tuple[list[tuple[_Track, Detection]], list[Detection]]:
+        """Hungarian assignment within gates. Returns the pairs and the detections no track
+        could explain; ambiguous detections are in neither."""
         if not tracks or not detections:
             return [], list(detections)
         cost = np.full((len(tracks), len(detections)), _NO_MATCH)
@@ -200,39 +223,46 @@ class ObjectTracker:
                 cost[i, j] = distance + self.params.angle_cost * turn
         rows, cols = linear_sum_assignment(cost)
         kept = [(i, j) for i, j in zip(rows, cols, strict=True) if cost[i, j] < _NO_MATCH]
-        pairs = [(tracks[i], detections[j]) for i, j in kept]
+        assigned_rows = {i for i, _ in kept}
+        unassigned_rows = [i for i in range(len(tracks)) if i not in assigned_rows]
+        ambiguous = {j for i, j in kept
+                     if any(cost[other, j] < cost[i, j] + self.params.ambiguity_margin
+                            for other in unassigned_rows)}
+        pairs = [(tracks[i], detections[j]) for i, j in kept if j not in ambiguous]
         used = {j for _, j in kept}
         return pairs, [d for j, d in enumerate(detections) if j not in used]
 
-    def _name_new(self, detections: list[Detection], stamp: float) -> None:
+    def _name_new(self, detections: list[Detection], stamp: float) -> list[str]:
         """Start tracks for unmatched detections: expected ids first, then lost ones, then new."""
+        events = []
         detections = sorted(detections, key=lambda d: (d.object_class, d.pose.x, d.pose.y))
         for class_name in sorted({d.object_class for d in detections}):
             cls = self.classes[class_name]
             of_class = [d for d in detections if d.object_class == class_name]
             expected = [e for e in self.pending if e.object_class == class_name]
-            if expected:
-                cost = np.array([[math.hypot(d.pose.x - e.pose.x, d.pose.y - e.pose.y)
-                                  for d in of_class] for e in expected])
-                rows, cols = linear_sum_assignment(cost)
-                for i, j in zip(rows, cols, strict=True):
-                    spec, detection = expected[i], of_class[j]
-                    start = Pose2D(spec.pose.x, spec.pose.y, spec.pose.theta)
-                    self.tracks.append(_Track(spec.id, cls, start, detection, stamp))
-                    self.pending.remove(spec)
-                of_class = [d for j, d in enumerate(of_class) if j not in set(cols)]
+            for spec, detection, _ in _closest_pairs(expected, of_class):
+                start = Pose2D(spec.pose.x, spec.pose.y, spec.pose.theta)
+                self.tracks.append(_Track(spec.id, cls, start, detection, stamp))
+                self.pending.remove(spec)
+                events.append(f"{spec.id} first seen at ({detection.pose.x:.3f}, "
+                              f"{detection.pose.y:.3f})")
+                of_class.remove(detection)
+            lost = [t for t in self.tracks
+                    if t.cls.name == class_name and t.status is TrackStatus.LOST]
+            for track, detection, distance in _closest_pairs(lost, of_class):
+                track.observe(detection, stamp)
+                events.append(f"{track.id} found again {1000 * distance:.0f} mm from where it "
+                              f"was lost, at ({detection.pose.x:.3f}, {detection.pose.y:.3f})")
+                of_class.remove(detection)
             for detection in of_class:
-                lost = [t for t in self.tracks
-                        if t.cls.name == class_name and t.status is TrackStatus.LOST]
-                if lost:
-                    track = min(lost, key=lambda t: math.hypot(t.pose.x - detection.pose.x,
-                                                               t.pose.y - detection.pose.y))
-                    track.observe(detection, stamp)
-                    continue
                 start = Pose2D(detection.pose.x, detection.pose.y,
                                angle_difference_modulo_symmetry(detection.pose.theta, 0.0,
                                                                 cls.symmetry))
-                self.tracks.append(_Track(self._new_id(class_name), cls, start, detection, stamp))
+                track = _Track(self._new_id(class_name), cls, start, detection, stamp)
+                self.tracks.append(track)
+                events.append(f"{track.id}: new object at ({detection.pose.x:.3f}, "
+                              f"{detection.pose.y:.3f})")
+        return events
 
     def _new_id(self, class_name: str) -> str:
         taken = {t.id for t in self.tracks} | {e.id for e in self.pending}
@@ -242,29 +272,31 @@ class ObjectTracker:
         return f"{class_name}_{n}"
 
     def _unseen_status(self, track: _Track, stamp: float, height_image: HeightImage | None,
-                       obstructions: list[Detection]) -> TrackStatus:
+                       obstructions: list[Detection]) -> tuple[TrackStatus, str]:
         """Why a known object was not seen: covered, out of view, briefly missing, or gone."""
         if track.status is TrackStatus.LOST:
-            return TrackStatus.LOST
+            return TrackStatus.LOST, "still lost"
         footprint = track.footprint()
         if height_image is not None:
             if height_image.visible_fraction(footprint, track.height) < 1.0:
-                return TrackStatus.LOST
+                return TrackStatus.LOST, "its footprint left the camera's view"
             covered = height_image.covered_fraction(footprint, track.height,
                                                     self.params.occlusion_margin)
             if covered >= self.params.occlusion_min_fraction:
-                return TrackStatus.OCCLUDED
+                return TrackStatus.OCCLUDED, "covered"
             bare = height_image.bare_fraction(footprint, track.height, 0.5 * track.height)
             if bare >= self.params.vacated_min_fraction:
-                return TrackStatus.LOST
+                return TrackStatus.LOST, f"{100 * bare:.0f} % of its footprint is bare table"
         for detection in obstructions:
             near = math.hypot(detection.pose.x - track.pose.x, detection.pose.y - track.pose.y)
             if near <= self.params.gate_unseen and (detection.occluded or detection.truncated
                                                     or detection.object_class is None):
-                return TrackStatus.LOST if detection.truncated else TrackStatus.OCCLUDED
+                if detection.truncated:
+                    return TrackStatus.LOST, "it is cut by the image border"
+                return TrackStatus.OCCLUDED, "next to an obstruction"
         if stamp - track.last_seen > self.params.lost_timeout:
-            return TrackStatus.LOST
-        return TrackStatus.STALE
+            return TrackStatus.LOST, f"unseen for {stamp - track.last_seen:.1f} s"
+        return TrackStatus.STALE, "missing from this frame"
 
     # ------------------------------------------------------------------------------ queries
     def estimates(self, frame_age: float | None = None) -> list[ObjectEstimate]:
@@ -325,3 +357,16 @@ class ObjectTracker:
                 reasons.append(f"{estimate.id} {estimate.status.name.lower()}")
         return reasons
 
+
+def _closest_pairs(candidates: list[_Posed],
+                   detections: list[Detection]) -> list[tuple[_Posed, Detection, float]]:
+    """(candidate, detection, distance) pairs of least total distance between candidate poses
+    (expected objects or lost tracks) and detections: nearest-first greedy matching can hand
+    two neighbours each other's identity."""
+    if not candidates or not detections:
+        return []
+    cost = np.array([[math.hypot(d.pose.x - c.pose.x, d.pose.y - c.pose.y) for d in detections]
+                     for c in candidates])
+    rows, cols = linear_sum_assignment(cost)
+    return [(candidates[i], detections[j], float(cost[i, j]))
+            for i, j in zip(rows, cols, strict=True)]
