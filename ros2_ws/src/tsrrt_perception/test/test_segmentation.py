@@ -142,6 +142,19 @@ def test_unknown_footprint_is_not_forced_into_a_class(classes, camera_view, pain
     assert detection.object_class is None and not detection.pose_valid
 
 
+@pytest.mark.parametrize("height", [0.020, 0.40])
+def test_a_plate_footprint_at_another_height_is_not_a_plate(classes, camera_view, painter,
+                                                             height):
+    """What is left of a platter (2 cm) round the arm, or the top of an arm link, can have a
+    plate's footprint; only its height tells it is not one."""
+    plate = classes["plate"]
+    polygon, _, colour = painter.face(plate, Pose2D(0.45, 0.0, 0.0))
+    depth, _ = painter.draw([(polygon, height, colour)])
+    (detection,) = segment_objects(depth, camera_view, 0.0, classes).detections
+    assert detection.shape == "cylinder" and detection.height == pytest.approx(height, abs=1e-3)
+    assert detection.object_class is None and not detection.pose_valid
+
+
 def test_object_cut_by_the_image_border_is_truncated(classes, camera_view, painter):
     edge_y = camera_view.pixels_to_plane(np.array([[0.0, 240.0]]), classes["remote"].height)[0, 1]
     pose = Pose2D(0.45, edge_y, 0.0)

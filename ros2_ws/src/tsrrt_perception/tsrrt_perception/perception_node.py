@@ -91,6 +91,7 @@ class PerceptionNode(Node):
         self.segmentation_params = SegmentationParams(
             depth_threshold=p("depth_threshold").value,
             top_face_tolerance=p("top_face_tolerance").value,
+            height_tolerance=p("height_tolerance").value,
             occluder_margin=p("occluder_margin").value,
             min_area_px=p("min_area_px").value)
         tracker_params = TrackerParams(
@@ -144,6 +145,9 @@ class PerceptionNode(Node):
             0.001, 0.1, "height above the table from which a pixel belongs to an object, m"))
         declare("top_face_tolerance", 0.001, _float_range(
             0.0002, 0.02, "height difference within which a pixel is on an object's top face, m"))
+        declare("height_tolerance", 0.003, _float_range(
+            0.0005, 0.05, "difference between a top face's height and its class's within which "
+                          "the face may be of that class, m"))
         declare("occluder_margin", 0.01, _float_range(
             0.002, 0.5, "height above an object's top that counts as something covering it, m"))
         declare("min_area_px", 150, ParameterDescriptor(

@@ -7,7 +7,9 @@ the table are kept, because in perspective the side faces of an object away from
 are visible too and shift a colour mask's centroid by millimetres. Each top face lies in a plane
 parallel to the table, so it is mapped to the table through the intrinsics at its own measured
 height. Centroid and long axis come from the face's second moments, which average over every
-boundary pixel and so resolve a fraction of a pixel; the box's extent from the same moments.
+boundary pixel and so resolve a fraction of a pixel; the box's extent from the same moments. The
+class is the one whose footprint and height the face matches: a footprint alone let the flat top
+of an arm link, or a platter's corner left round by the arm, pass for a plate.
 
 Objects that touch are separated by their height (different top levels), by colour steps between
 top faces at the same level, and otherwise by eroding the merged face until it falls apart.
@@ -38,6 +40,9 @@ class SegmentationParams:
     depth_threshold: float = 0.005        # m above the table for a pixel to belong to an object
     flat_tolerance: float = 0.0015        # m of height range in a 3x3 patch on a flat top face
     top_face_tolerance: float = 0.001     # m between a pixel and its face's level
+    # m between a face's level and its class's height: a platter's corner left round by the
+    # arm, or the arm's own flat link tops, fit a plate's footprint but not its height
+    height_tolerance: float = 0.003
     min_area_px: int = 150                # smaller faces are noise
     occluder_margin: float = 0.01         # m above a face that counts as something covering it
     colour_edge_threshold: int = 6        # colour step (0-255) between touching faces; 0 = off
@@ -213,12 +218,12 @@ class FaceMeasurer:
         self.table_height = table_height
         self.params = params
 
-    def classify(self, shape: str, length: float,
-                 width: float) -> tuple[ObjectClass | None, float]:
-        """Closest class of this shape by footprint, and the footprint error (m) to it."""
+    def classify(self, shape: str, length: float, width: float,
+                 height: float) -> tuple[ObjectClass | None, float]:
+        """Closest class of this shape and height by footprint, and the footprint error (m)."""
         best, best_error = None, math.inf
         for cls in self.classes.values():
-            if cls.shape != shape:
+            if cls.shape != shape or abs(height - cls.height) > self.params.height_tolerance:
                 continue
             error = max(abs(length - cls.length), abs(width - cls.width))
             if error < best_error:
@@ -263,7 +268,7 @@ class FaceMeasurer:
                                                    plane_z)
                 long_axis = ends[1, :2] - ends[0, :2]
             theta = math.atan2(long_axis[1], long_axis[0])
-        cls, class_error = self.classify(shape, length, width)
+        cls, class_error = self.classify(shape, length, width, face.level)
 
         u0, v0 = face.origin
         h, w = face.mask.shape
