@@ -245,3 +245,22 @@ def test_sigterm_shuts_the_node_down_cleanly(launch):
     log = process.log()
     assert returncode == 0, log
     assert "Traceback" not in log, log
+
+
+def test_sigterm_during_a_trajectory_shuts_the_node_down_cleanly(sim, probe):
+    """Shutting down stops physics: a trajectory goal still running must end then (aborted),
+    or its thread keeps the process from exiting until it is killed. Last in the module: it
+    stops the module's sim."""
+    feedback: list = []
+    running = probe.send_goal(goal_to([shifted(0.5)], [600.0]), feedback)
+    assert running.accepted
+    result = running.get_result_async()
+    assert probe.spin_until(lambda: bool(feedback)), "the trajectory never started"
+    began = time.monotonic()
+    returncode = sim.stop(signal.SIGTERM)
+    log = sim.log() + f"\n(stopped in {time.monotonic() - began:.1f} s)"
+    assert returncode == 0, log
+    assert "Traceback" not in log, log
+    probe.spin_until(result.done, timeout=2.0)
+    if result.done():   # the result may or may not get out before the node goes
+        assert result.result().result.error_code == Result.PREEMPTED

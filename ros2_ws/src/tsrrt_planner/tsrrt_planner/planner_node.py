@@ -646,9 +646,11 @@ class PlannerNode(Node):
     def _log_plan(self, plan: PlanResult) -> None:
         """Publish a RunTask (re)plan and say in the log what it promises."""
         self._publish_plan(plan)
+        start = ", ".join(f"{spec.id} {x:.4f} {y:.4f} {theta:.3f}" for spec, (x, y, theta)
+                          in zip(self.scenario.objects, plan.states[0], strict=True))
         self.get_logger().info(
             f"plan: {len(plan.steps)} pushes, cost {plan.costs[0]:.4f} -> {plan.best_cost:.4f} "
-            f"predicted, {plan.nodes} nodes in {plan.elapsed_s:.1f} s")
+            f"predicted, {plan.nodes} nodes in {plan.elapsed_s:.1f} s, from {start}")
 
     def _publish_plan(self, plan: PlanResult) -> Plan:
         message = Plan()

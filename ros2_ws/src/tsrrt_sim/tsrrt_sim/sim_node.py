@@ -99,6 +99,10 @@ def _point(positions: np.ndarray, velocities: np.ndarray, accelerations: np.ndar
     return point
 
 
+class SimulationStopped(TsrrtError):
+    """Physics has stopped (the node is shutting down): a request cannot run any more."""
+
+
 class SimNode(Node):
     """The simulated robot, camera and table behind ROS 2 topics, an action and services."""
 
@@ -230,9 +234,14 @@ class SimNode(Node):
 
     # ---------------------------------------------------------------------- physics thread
     def _call_in_physics(self, function: Callable[[], T]) -> T:
-        """Run `function` on the physics thread between ticks and return its result."""
+        """Run `function` on the physics thread between ticks and return its result.
+
+        Raises:
+            SimulationStopped: physics is not running, or stopped before it got to `function`
+                (the node is shutting down).
+        """
         if not self._physics_thread.is_alive():
-            raise TsrrtError("the physics thread is not running")
+            raise SimulationStopped("the simulation has stopped (the node is shutting down)")
         future: Future = Future()
         self._requests.put((function, future))
         return future.result(timeout=REQUEST_TIMEOUT_S)
@@ -247,6 +256,17 @@ class SimNode(Node):
                 future.set_result(function())
             except Exception as error:  # noqa: BLE001 - handed to the waiting caller
                 future.set_exception(error)
+
+    def _fail_requests(self) -> None:
+        """Answer requests queued after the last tick: nothing will run them any more."""
+        while True:
+            try:
+                _, future = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            future.set_exception(SimulationStopped(
+                "the simulation stopped before it got to the request (the node is shutting "
+                "down)"))
 
     def _physics_loop(self) -> None:
         world = self.world
@@ -293,6 +313,8 @@ class SimNode(Node):
             self.get_logger().fatal(f"physics loop failed: {error!r}")
             rclpy.try_shutdown(context=self.context)
             raise
+        finally:
+            self._fail_requests()
 
     def _pace(self) -> float:
         """Simulated seconds per wall second now (0: as fast as possible). At full speed an idle
@@ -405,11 +427,22 @@ class SimNode(Node):
             goal_handle.abort()
             result.error_code, result.error_string = int(error.code), str(error)
             return result
+        except SimulationStopped as stopped:
+            return self._abort_stopped(goal_handle, result, stopped)
         published = False
         next_feedback = time.monotonic()
         while not execution.done:
+            if not (self._physics_thread.is_alive() and self.context.ok()):
+                # Nothing moves the arm any more: waiting on would keep this thread, and so the
+                # process, alive after shutdown until it is killed (nor can feedback go out).
+                return self._abort_stopped(goal_handle, result, SimulationStopped(
+                    "the simulation stopped (the node is shutting down) before the trajectory "
+                    "ended"))
             if goal_handle.is_cancel_requested:
-                self._call_in_physics(lambda: self.world.controller.cancel(execution))
+                try:
+                    self._call_in_physics(lambda: self.world.controller.cancel(execution))
+                except SimulationStopped as stopped:
+                    return self._abort_stopped(goal_handle, result, stopped)
                 continue
             if execution.desired is not None and time.monotonic() >= next_feedback:
                 goal_handle.publish_feedback(self._feedback(execution))
@@ -433,6 +466,15 @@ class SimNode(Node):
         else:
             self.get_logger().warn(f"trajectory goal ended {execution.status.value}: "
                                    f"{execution.error_string}")
+            goal_handle.abort()
+        return result
+
+    def _abort_stopped(self, goal_handle: ServerGoalHandle, result: FollowJointTrajectory.Result,
+                       stopped: SimulationStopped) -> FollowJointTrajectory.Result:
+        """End a goal the stopped simulation cannot execute: PREEMPTED, by the shutdown."""
+        result.error_code = int(TrajectoryErrorCode.PREEMPTED)
+        result.error_string = str(stopped)
+        if self.context.ok():
             goal_handle.abort()
         return result
 
@@ -462,7 +504,11 @@ class SimNode(Node):
             self._continuous_theta.clear()
             self.world.settle(0.5)
 
-        self._call_in_physics(reload)
+        try:
+            self._call_in_physics(reload)
+        except TsrrtError as error:
+            response.success, response.message = False, str(error)
+            return response
         self.get_logger().info(f"loaded scenario '{scenario.name}' (seed {scenario.seed})")
         response.success, response.scenario_name = True, scenario.name
         response.message = f"loaded {scenario.source} with seed {scenario.seed}"
