@@ -264,3 +264,27 @@ def test_sigterm_during_a_trajectory_shuts_the_node_down_cleanly(sim, probe):
     probe.spin_until(result.done, timeout=2.0)
     if result.done():   # the result may or may not get out before the node goes
         assert result.result().result.error_code == Result.PREEMPTED
+
+
+def test_a_finished_trajectory_gets_its_frames_back_to_back(launch, sim, probe):
+    """At one frame per 5 s, the frames that show the scene the arm left (two: one to see it,
+    one to see it still) still come the moment the trajectory ends."""
+    sim.stop(signal.SIGTERM)      # the module's sim, with its 10 Hz camera, must not answer
+    slow_camera = launch.start("tsrrt_sim", "sim_node", "scenario:=" + SCENARIO,
+                               "camera_rate_hz:=0.2", "frames_after_motion:=2")
+    try:
+        probe.camera_infos.clear()    # the module's sim (stopped above) published these
+        assert probe.spin_until(lambda: probe.camera_info is not None, timeout=30.0)
+        probe.depths.clear()          # ... and these
+        result = probe.execute(goal_to([shifted(0.2)], [1.0])).result
+        assert result.error_code == Result.SUCCESSFUL, result.error_string
+        end = result.end_stamp.sec + result.end_stamp.nanosec * 1e-9
+
+        def frames_after_end() -> int:
+            return sum(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 >= end
+                       for m in probe.depths)
+
+        assert probe.spin_until(lambda: frames_after_end() >= 2, timeout=3.0), \
+            f"{frames_after_end()} frames after the trajectory within 3 s"
+    finally:
+        slow_camera.stop(signal.SIGTERM)

@@ -19,7 +19,10 @@ simulation time. Rates:
   wall-clock pace; at a real-time factor of 20, 10 frames per wall second are one frame every
   2 s of simulated time. Frames are rendered in a worker process while physics continues, and
   each frame (with its ground truth on /sim/object_states) is stamped with the simulation time
-  of the state it shows.
+  of the state it shows. When a trajectory ends, frames_after_motion frames are rendered back to
+  back (each as soon as the worker is free): whoever moved the arm out of view waits for the scene
+  it left, and to see it still takes two frames; the next 10 Hz tick would be 1 s of idle
+  simulated time and 0.1 s of wall time later.
 
 Faults: camera_drop_fraction leaves that fraction of rendered frames unpublished (colour, depth
 and camera info; chosen at random with a fixed seed, so a run is repeatable), as a lossy link
@@ -117,6 +120,7 @@ class SimNode(Node):
         self.joint_state_period = 1.0 / p("joint_state_rate_hz")
         self.publish_wall_period = 1.0 / p("max_publish_wall_hz")
         self.camera_period = 1.0 / p("camera_rate_hz")
+        self.frames_after_motion: int = p("frames_after_motion")
         self.feedback_period = 1.0 / p("feedback_rate_hz")
         self._drop_random = random.Random(0)
         tolerances = Tolerances.uniform(
@@ -160,7 +164,7 @@ class SimNode(Node):
 
         self._requests: queue.Queue[tuple[Callable[[], Any], Future]] = queue.Queue()
         self._stop = threading.Event()
-        self._frame_requested = threading.Event()
+        self._frames_due = 0     # frames to render back to back (set when a trajectory ends)
         self._physics_thread = threading.Thread(target=self._physics_loop, name="physics",
                                                 daemon=True)
         self._physics_thread.start()
@@ -199,6 +203,10 @@ class SimNode(Node):
                "of a simulation faster than real time)")
         number("camera_rate_hz", 10.0, 0.1, 60.0,
                "camera frames per WALL-CLOCK second (rendering is the bottleneck)")
+        self.declare_parameter("frames_after_motion", 2, ParameterDescriptor(
+            description="camera frames rendered back to back when a trajectory ends, beside "
+            "camera_rate_hz (seeing the scene still takes two)", read_only=True,
+            integer_range=[IntegerRange(from_value=0, to_value=10, step=1)]))
         self.declare_parameter("camera_drop_fraction", 0.0, ParameterDescriptor(
             description="fraction of camera frames left unpublished, at random (fault "
             "injection; settable at runtime)",
@@ -291,12 +299,11 @@ class SimNode(Node):
                 if frame is not None:
                     self._publish_frame(frame, self._pending_visual_state)
                 now_wall = time.monotonic()
-                # A finished trajectory gets a frame at once: whoever moved the arm out of view
-                # is waiting to see the scene it left.
-                frame_now = self._frame_requested.is_set()
+                # A finished trajectory gets its frames at once (frames_after_motion).
+                frame_now = self._frames_due > 0
                 if (now_wall >= next_frame_wall or frame_now) and not self.renderer.busy:
                     next_frame_wall = max(next_frame_wall + self.camera_period, now_wall)
-                    self._frame_requested.clear()
+                    self._frames_due = max(self._frames_due - 1, 0)
                     self._start_frame()
                 if self._pace() != pace:
                     pace, wall_origin, sim_origin = self._pace(), time.monotonic(), now_sim
@@ -449,7 +456,7 @@ class SimNode(Node):
                 published = True
                 next_feedback += self.feedback_period
             time.sleep(GOAL_POLL_PERIOD_S)
-        self._frame_requested.set()
+        self._frames_due = self.frames_after_motion
         if not published and execution.desired is not None:
             # At full sim speed a short trajectory can end before the first feedback period;
             # every executed goal still reports at least its final state.
