@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import signal
 import subprocess
 import sys
@@ -38,6 +37,7 @@ from tsrrt_common.ros_node import ActionClient
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_interfaces.action import RunTask
 from tsrrt_interfaces.msg import ForwardModelArray, ObjectStateArray
+from tsrrt_planner.lower_bound import relative_gap
 from tsrrt_planner.model_learning import ForwardModel, ModelStore
 from tsrrt_planner.objectives import Objective, build_objective
 from tsrrt_planner.report_figures import (
@@ -48,7 +48,6 @@ from tsrrt_planner.report_figures import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
-ZERO_OPTIMUM = 1e-6   # |lower bound| below which no relative gap is reported
 ERROR_NAMES = {value: name for name, value in vars(RunTask.Result).items()
                if name.isupper() and isinstance(value, int)}
 
@@ -253,9 +252,7 @@ def _report(scenario: Scenario, objective: Objective, result: RunTask.Result,
     perceived = {s.id: Pose2D(s.x, s.y, s.theta) for s in result.final_objects}
     final_cost_true = float(objective.cost(_state(scenario, true_final)))
     bound = float(result.lower_bound)
-    # A relative gap means nothing against a zero optimum (obstacle: the goal point itself).
-    gap = ((final_cost_true - bound) / abs(bound)
-           if math.isfinite(bound) and abs(bound) > ZERO_OPTIMUM else None)
+    gap = relative_gap(final_cost_true, bound)
     return {
         "scenario": scenario.name,
         "success": result.error_code == RunTask.Result.SUCCESS,

@@ -10,7 +10,7 @@ import pytest
 
 from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.errors import PlannerError
-from tsrrt_planner.lower_bound import local_minimum, lower_bound
+from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
@@ -137,6 +137,18 @@ def test_lower_bound_is_feasible_and_below_start(problem, bound):
     assert bound.cost <= problem.objective.cost(problem.start)
     state, cost, feasible = local_minimum(problem, problem.start)
     assert feasible and cost <= problem.objective.cost(problem.start) + 1e-12
+
+
+@pytest.mark.parametrize("cost, bound, gap", [
+    (-1.9, -2.0, 0.05), (0.105, 0.1, 0.05), (0.3, 0.0, None), (0.3, 1e-7, None),
+    (0.3, None, None), (0.3, float("nan"), None)])
+def test_relative_gap_is_none_where_it_means_nothing(cost, bound, gap):
+    """Against a zero optimum (the obstacle task's goal point) any cost is an infinite relative
+    gap; the benchmark, the reports and the messages then give no gap rather than 10^9 %."""
+    if gap is None:
+        assert relative_gap(cost, bound) is None
+    else:
+        assert relative_gap(cost, bound) == pytest.approx(gap)
 
 
 def test_matching_permutes_only_interchangeable_objects(problem):

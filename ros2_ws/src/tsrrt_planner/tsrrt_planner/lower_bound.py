@@ -16,6 +16,7 @@ nearest constrained local minimum.
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from dataclasses import dataclass
@@ -26,6 +27,15 @@ from scipy.optimize import minimize
 from tsrrt_planner.problem import PlanningProblem
 
 FEASIBILITY_TOLERANCE = 1e-5  # metres; SLSQP stops a hair outside active constraints
+ZERO_OPTIMUM = 1e-6  # |lower bound| at or below which a relative gap means nothing
+
+
+def relative_gap(cost: float, bound: float | None) -> float | None:
+    """Gap = (C - C_lb) / |C_lb|; None without a finite bound, or against a zero optimum (the
+    obstacle task's goal point), where every cost short of it would be an infinite gap."""
+    if bound is None or not math.isfinite(bound) or abs(bound) <= ZERO_OPTIMUM:
+        return None
+    return (cost - bound) / abs(bound)
 
 
 def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: int = 60

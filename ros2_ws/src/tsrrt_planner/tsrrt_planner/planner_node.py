@@ -70,7 +70,7 @@ from tsrrt_planner.closed_loop import (
     scenario_at,
 )
 from tsrrt_planner.errors import ModelFileError, PlannerError
-from tsrrt_planner.lower_bound import LowerBound, lower_bound
+from tsrrt_planner.lower_bound import LowerBound, lower_bound, relative_gap
 from tsrrt_planner.model_learning import (
     ConfidenceStoppingRule,
     DisplacementStats,
@@ -699,9 +699,9 @@ def _scale(width: float) -> Vector3:
 
 
 def _gap(cost: float, bound: float) -> float:
-    if not math.isfinite(bound):
-        return math.nan
-    return float((cost - bound) / max(abs(bound), 1e-12))
+    """The relative gap for a message: NaN where there is none (no bound, a zero optimum)."""
+    gap = relative_gap(cost, bound)
+    return math.nan if gap is None else float(gap)
 
 
 def _object_state(spec, pose: Pose2D) -> ObjectState:

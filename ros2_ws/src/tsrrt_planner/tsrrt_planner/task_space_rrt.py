@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from tsrrt_planner.errors import PlannerError
-from tsrrt_planner.lower_bound import local_minimum, random_state
+from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.rearrange import (
     blockers_of,
@@ -121,11 +121,8 @@ class PlanResult:
         return float(self.costs[-1])
 
     def gap(self, cost: float | None = None) -> float | None:
-        """(C - C_lb) / |C_lb| of `cost` (default the final one); None without a bound."""
-        if self.lower_bound is None:
-            return None
-        value = self.best_cost if cost is None else cost
-        return (value - self.lower_bound) / max(abs(self.lower_bound), 1e-12)
+        """lower_bound.relative_gap of `cost` (default the final one)."""
+        return relative_gap(self.best_cost if cost is None else cost, self.lower_bound)
 
 
 class Tree:
