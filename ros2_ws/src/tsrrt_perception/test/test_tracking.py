@@ -7,8 +7,15 @@ import pytest
 
 from tsrrt_common.geometry import Pose2D, box_corners, wrap_angle
 from tsrrt_common.object_classes import ObjectClass
+from tsrrt_common.scenario import load_scenario
 from tsrrt_perception.segmentation import Detection, HeightImage
-from tsrrt_perception.tracking import ExpectedObject, ObjectTracker, TrackerParams, TrackStatus
+from tsrrt_perception.tracking import (
+    ExpectedObject,
+    ObjectTracker,
+    TrackerParams,
+    TrackStatus,
+    expected_objects,
+)
 
 
 def detection(cls: ObjectClass, x: float, y: float, theta: float = 0.0,
@@ -111,6 +118,16 @@ def test_expected_objects_name_detections_by_class_and_initial_pose(classes, cam
     assert estimates["plate_1"].status is TrackStatus.TRACKED
     assert estimates["plate_1"].pose.x == 0.3
     assert estimates["plate_2"].pose.x == 0.55                   # a new one, not plate_1 again
+
+
+def test_a_scenario_obstacle_is_named_after_the_file(classes, camera_view):
+    scenario = load_scenario("obstacle")
+    tracker = ObjectTracker(classes, expected=expected_objects(scenario))
+    punch = scenario.obstacles[0]
+    events = tracker.update([detection(classes[punch.object_class], punch.pose.x, punch.pose.y,
+                                       punch.pose.theta)], 0.0, empty_frame(camera_view))
+    assert by_id(tracker)[punch.id].status is TrackStatus.TRACKED
+    assert events == [f"{punch.id} first seen at ({punch.pose.x:.3f}, {punch.pose.y:.3f})"]
 
 
 def test_covered_object_is_occluded_with_its_last_pose_then_reacquired(classes, camera_view):

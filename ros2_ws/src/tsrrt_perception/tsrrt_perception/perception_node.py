@@ -42,6 +42,7 @@ from tsrrt_perception.tracking import (
     ObjectTracker,
     TrackerParams,
     TrackStatus,
+    expected_objects,
 )
 
 FRAME_ID = "world"
@@ -158,7 +159,7 @@ class PerceptionNode(Node):
                         "tsrrt_sim offers) or 'best_effort' (for a camera driver publishing "
                         "sensor-data QoS)", read_only=True))
         declare("scenario", "", ParameterDescriptor(
-            description="scenario name or path whose object ids name the detections "
+            description="scenario name or path whose object and obstacle ids name the detections "
                         "(closest to their initial pose, by class); empty: <class>_<n>"))
         declare("scenario_seed", -1, ParameterDescriptor(
             description="seed for the scenario's random placements; -1 uses the file's",
@@ -183,7 +184,7 @@ class PerceptionNode(Node):
             return []
         seed = self.get_parameter("scenario_seed").value
         scenario = load_scenario(name, seed=None if seed < 0 else seed)
-        return [ExpectedObject(o.id, o.object_class, o.pose) for o in scenario.objects]
+        return expected_objects(scenario)
 
     # ---------------------------------------------------------------------------- callbacks
     def _on_camera_info(self, msg: CameraInfo) -> None:

@@ -25,6 +25,7 @@ from scipy.optimize import linear_sum_assignment
 
 from tsrrt_common.geometry import Pose2D, angle_difference_modulo_symmetry, footprint_polygon
 from tsrrt_common.object_classes import ObjectClass, lookup_class
+from tsrrt_common.scenario import Scenario
 from tsrrt_perception.segmentation import Detection, HeightImage
 
 _NO_MATCH = 1e6
@@ -146,6 +147,13 @@ class _Track:
 
 
 _Posed = TypeVar("_Posed", ExpectedObject, _Track)
+
+
+def expected_objects(scenario: Scenario) -> list[ExpectedObject]:
+    """What a scenario places on the table, objects and obstacles alike: a fixed obstacle is in
+    view too, and is named after the file rather than as a new <class>_1."""
+    return [ExpectedObject(o.id, o.object_class, o.pose)
+            for o in (*scenario.objects, *scenario.obstacles)]
 
 
 class ObjectTracker:
