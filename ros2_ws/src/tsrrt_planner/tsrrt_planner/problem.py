@@ -71,6 +71,10 @@ class PlanningProblem:
             of reach).
         reachability: arm reach model (default: the executor's IK grid, default_map()).
         margin: clearance kept between footprints, metres.
+        ball_margin: clearance kept between the ball's path and the objects it must not touch:
+            the executor's own (path_clearance, 3 mm) plus 3 mm, because a plan's later pushes
+            start from predicted states a few millimetres off what will be observed (at 3 mm,
+            five of eight replans of a tset6 task were pushes the executor then refused).
         max_substep: longest object travel between two collision-checked poses of a push.
         max_start_overlap: overlap of footprints (beyond the margin) tolerated in the start.
         max_start_overhang: overhang past a table edge tolerated in the start.
@@ -78,6 +82,7 @@ class PlanningProblem:
 
     def __init__(self, scenario: Scenario, models: ModelStore,
                  reachability: Reachability | None = None, margin: float = 0.005,
+                 ball_margin: float = 0.006,
                  max_substep: float = 0.03, max_start_overlap: float = 0.003,
                  max_start_overhang: float = 0.03) -> None:
         self.scenario = scenario
@@ -85,7 +90,7 @@ class PlanningProblem:
         self.n = len(self.objects)
         self.objective: Objective = build_objective(scenario)
         self.checker = CollisionChecker(self.objects, scenario.obstacles, scenario.table.bounds,
-                                        margin=margin)
+                                        margin=margin, ball_margin=ball_margin)
         self.reachability = reachability if reachability is not None else default_map()
         self.max_substep = max_substep
         models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects
