@@ -38,7 +38,7 @@ import queue
 import random
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 from typing import Any, TypeVar
 
@@ -254,12 +254,15 @@ class SimNode(Node):
         self._requests.put((function, future))
         return future.result(timeout=REQUEST_TIMEOUT_S)
 
-    def _run_requests(self) -> None:
+    def _queued_requests(self) -> Iterator[tuple[Callable[[], Any], Future]]:
         while True:
             try:
-                function, future = self._requests.get_nowait()
+                yield self._requests.get_nowait()
             except queue.Empty:
                 return
+
+    def _run_requests(self) -> None:
+        for function, future in self._queued_requests():
             try:
                 future.set_result(function())
             except Exception as error:  # noqa: BLE001 - handed to the waiting caller
@@ -267,11 +270,7 @@ class SimNode(Node):
 
     def _fail_requests(self) -> None:
         """Answer requests queued after the last tick: nothing will run them any more."""
-        while True:
-            try:
-                _, future = self._requests.get_nowait()
-            except queue.Empty:
-                return
+        for _, future in self._queued_requests():
             future.set_exception(SimulationStopped(
                 "the simulation stopped before it got to the request (the node is shutting "
                 "down)"))
