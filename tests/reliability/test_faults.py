@@ -215,8 +215,11 @@ def test_perception_restart_recovers_the_same_ids_at_the_same_poses(graph: TaskG
     observed = graph.probe.record(ObjectStateArray, "/planner/observed")
     handle = graph.probe.send_goal(graph.plan_client, PlanTask.Goal(budget_s=0.5))
     wrapped = graph.probe.wait_for(handle.get_result_async(), FAILURE_TIMEOUT_S)
-    assert wrapped.result.error_code in (PlanTask.Result.SUCCESS,
-                                         PlanTask.Result.NO_IMPROVEMENT), wrapped.result.error_msg
+    # A rare failure here (no settled observation within 15 s, once in CI) left nothing to read:
+    # the restarted perception's log goes with it.
+    planned = (PlanTask.Result.SUCCESS, PlanTask.Result.NO_IMPROVEMENT)
+    assert wrapped.result.error_code in planned, \
+        f"{wrapped.result.error_msg}\n{graph.processes['perception_node'].log()[-4000:]}"
     assert observed, "the planner published no observation"
     assert_same_poses(perceived(observed[-1]), truth, "the planner's observation")
 
