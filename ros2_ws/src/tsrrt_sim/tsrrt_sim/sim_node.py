@@ -163,6 +163,10 @@ class SimNode(Node):
                             callback_group=group)
 
         self._requests: queue.Queue[tuple[Callable[[], Any], Future]] = queue.Queue()
+        # Cleared, under the lock, when physics stops: a request queued after its last drain
+        # would wait out REQUEST_TIMEOUT_S.
+        self._taking_requests = True
+        self._requests_lock = threading.Lock()
         self._stop = threading.Event()
         self._frames_due = 0     # frames to render back to back (set when a trajectory ends)
         self._physics_thread = threading.Thread(target=self._physics_loop, name="physics",
@@ -248,10 +252,11 @@ class SimNode(Node):
             SimulationStopped: physics is not running, or stopped before it got to `function`
                 (the node is shutting down).
         """
-        if not self._physics_thread.is_alive():
-            raise SimulationStopped("the simulation has stopped (the node is shutting down)")
         future: Future = Future()
-        self._requests.put((function, future))
+        with self._requests_lock:
+            if not self._taking_requests:
+                raise SimulationStopped("the simulation has stopped (the node is shutting down)")
+            self._requests.put((function, future))
         return future.result(timeout=REQUEST_TIMEOUT_S)
 
     def _queued_requests(self) -> Iterator[tuple[Callable[[], Any], Future]]:
@@ -320,6 +325,8 @@ class SimNode(Node):
             rclpy.try_shutdown(context=self.context)
             raise
         finally:
+            with self._requests_lock:
+                self._taking_requests = False
             self._fail_requests()
 
     def _pace(self) -> float:
