@@ -6,6 +6,7 @@ The one module of tsrrt_common that imports rclpy; the ROS-free cores never impo
 
 from __future__ import annotations
 
+import faulthandler
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -19,6 +20,10 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 
 from tsrrt_common.errors import TsrrtError
+
+# A node still shutting down this long after it began prints every thread's stack to stderr (its
+# log): a process that hangs on a signal is otherwise only a SIGKILL and a silent log.
+SHUTDOWN_REPORT_S = 10.0
 
 
 def time_message(seconds: float) -> TimeMessage:
@@ -82,6 +87,7 @@ def run_node(make_node: Callable[[], Node], name: str, threads: int,
         if rclpy.ok():
             raise
     finally:
+        faulthandler.dump_traceback_later(SHUTDOWN_REPORT_S)
         executor.shutdown()
         if node is not None:
             node.destroy_node()
