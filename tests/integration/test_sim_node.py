@@ -249,8 +249,8 @@ def test_sigterm_shuts_the_node_down_cleanly(launch):
 
 def test_sigterm_during_a_trajectory_shuts_the_node_down_cleanly(sim, probe):
     """Shutting down stops physics: a trajectory goal still running must end then (aborted),
-    or its thread keeps the process from exiting until it is killed. Last in the module: it
-    stops the module's sim."""
+    or its thread keeps the process from exiting until it is killed. It stops the module's sim:
+    only the test after it, which starts its own, may follow."""
     feedback: list = []
     running = probe.send_goal(goal_to([shifted(0.5)], [600.0]), feedback)
     assert running.accepted
