@@ -416,10 +416,11 @@ def simulate(problem: PlanningProblem, steps: list[tuple[int, int, float]]) -> n
 
 
 class _PaperSearch(_Search):
-    """Fig. 4 with nominal-length pushes; `use_gd` False gives the no-GD variant."""
+    """Fig. 4 with nominal-length pushes; mode paper-nogd gives the no-GD variant."""
 
-    def run(self, use_gd: bool) -> None:
+    def run(self) -> None:
         problem, config = self.problem, self.config
+        use_gd = self.mode == "paper"
         lengths = np.full(len(problem.action_objects), problem.nominal_length)
         s_gd = None
         iteration = 0
@@ -906,10 +907,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         search = _PaperSearch(*arguments)
     try:
         search.warm_start(warm_pushes)
-        if isinstance(search, _PaperSearch):
-            search.run(use_gd=mode == "paper")
-        else:
-            search.run()
+        search.run()
     except _Stop as stop:
         return search.result(stop.reason, lower_bound_cost)
     raise AssertionError("searches only end by _Stop")
