@@ -33,7 +33,7 @@ from sensor_msgs.msg import Image
 from tsrrt_common.camera import OverheadCamera
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.processes import stop_process_group
-from tsrrt_common.ros_node import ActionClient
+from tsrrt_common.ros_node import ActionClient, seconds
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_interfaces.action import RunTask
 from tsrrt_interfaces.msg import ForwardModelArray, ObjectStateArray
@@ -238,7 +238,7 @@ def _wait(future: rclpy.task.Future, timeout_s: float, message: str) -> Any:
 
 
 def _stamp(message: ObjectStateArray) -> float:
-    return message.header.stamp.sec + message.header.stamp.nanosec * 1e-9
+    return seconds(message.header.stamp)
 
 
 def _state(scenario: Scenario, poses: dict[str, Pose2D]) -> np.ndarray:

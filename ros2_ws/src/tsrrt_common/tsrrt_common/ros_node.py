@@ -13,6 +13,7 @@ from typing import Any
 
 import rclpy
 import rclpy.action
+from builtin_interfaces.msg import Duration as DurationMessage
 from builtin_interfaces.msg import Time as TimeMessage
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
@@ -30,6 +31,11 @@ def time_message(seconds: float) -> TimeMessage:
     """builtin_interfaces/Time of a time in seconds (e.g. simulation time)."""
     nanoseconds = round(seconds * 1e9)
     return TimeMessage(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def seconds(stamp: TimeMessage | DurationMessage) -> float:
+    """A builtin_interfaces/Time or Duration in seconds (the inverse of time_message)."""
+    return stamp.sec + stamp.nanosec * 1e-9
 
 
 class ActionClient(rclpy.action.ActionClient):

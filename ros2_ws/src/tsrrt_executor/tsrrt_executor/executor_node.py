@@ -37,7 +37,6 @@ import time
 
 import numpy as np
 from builtin_interfaces.msg import Duration
-from builtin_interfaces.msg import Time as TimeMessage
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -48,7 +47,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.robot_model import ARM_JOINT_NAMES
-from tsrrt_common.ros_node import ActionClient, run_node, time_message
+from tsrrt_common.ros_node import ActionClient, run_node, seconds, time_message
 from tsrrt_executor.errors import IKError, PrimitiveError, TrajectoryError, UnreachableError
 from tsrrt_executor.inverse_kinematics import PusherIK
 from tsrrt_executor.primitive_plan import (
@@ -98,16 +97,11 @@ def trajectory_message(trajectory: TimedJointTrajectory) -> JointTrajectory:
     message = JointTrajectory(joint_names=list(trajectory.joint_names))
     for t, q, qd, qdd in zip(trajectory.times, trajectory.positions, trajectory.velocities,
                              trajectory.accelerations, strict=True):
-        seconds = math.floor(t)
+        whole = math.floor(t)
         message.points.append(JointTrajectoryPoint(
             positions=q.tolist(), velocities=qd.tolist(), accelerations=qdd.tolist(),
-            time_from_start=Duration(sec=int(seconds), nanosec=int(round((t - seconds) * 1e9)))))
+            time_from_start=Duration(sec=int(whole), nanosec=int(round((t - whole) * 1e9)))))
     return message
-
-
-def _seconds(stamp: TimeMessage) -> float:
-    """A builtin_interfaces/Time in seconds (robot time)."""
-    return stamp.sec + stamp.nanosec * 1e-9
 
 
 def _float_range(low: float, high: float, description: str) -> ParameterDescriptor:
@@ -206,7 +200,7 @@ class ExecutorNode(Node):
         index = {name: i for i, name in enumerate(message.name)}
         if all(name in index for name in ARM_JOINT_NAMES):
             positions = np.array([message.position[index[name]] for name in ARM_JOINT_NAMES])
-            stamp = _seconds(message.header.stamp)
+            stamp = seconds(message.header.stamp)
             with self.lock:
                 self.joint_positions = positions
                 self.joint_state_arrival = time.monotonic()
@@ -334,7 +328,7 @@ class ExecutorNode(Node):
                 problem = (f"{object_id!r} is lost or missing in the settled observation (hidden,"
                            " or off the table)")
             else:
-                seen = _seconds(state.last_seen)
+                seen = seconds(state.last_seen)
                 if seen >= not_before:
                     return state, states
                 problem = (f"the settled observation (t = {seen:.2f} s) is older than the "
@@ -365,7 +359,7 @@ class ExecutorNode(Node):
             self._run(goal_handle, result)
             result.error_code = Result.SUCCESS
             goal_handle.succeed()
-            stages = ", ".join(f"{name} {seconds:.2f}" for name, seconds in
+            stages = ", ".join(f"{name} {took:.2f}" for name, took in
                                self.stage_times.items())
             self.get_logger().info(
                 f"primitive {goal.primitive} on {goal.object_id!r}: displacement "
@@ -419,7 +413,7 @@ class ExecutorNode(Node):
         try:
             plan = plan_primitive(self.ik, table_object(target), others, int(goal.primitive),
                                   float(goal.push_length),
-                                  self._fresh_joint_positions(stamped_after=_seconds(
+                                  self._fresh_joint_positions(stamped_after=seconds(
                                       target.last_seen)),
                                   settings)
         except PrimitiveError as error:
@@ -455,7 +449,7 @@ class ExecutorNode(Node):
         self._feedback(goal_handle, Feedback.PHASE_SETTLING, 0.0)
         # The controller's end stamp, not a later clock reading: the sim renders a frame the
         # moment a trajectory ends, stamped after the end but before the result gets here.
-        motion_end = _seconds(controller_result.end_stamp) or self._robot_time()
+        motion_end = seconds(controller_result.end_stamp) or self._robot_time()
         after, _ = self._settled_observation(goal_handle, goal.object_id, motion_end)
         self.still_since = motion_end
         result.after = after

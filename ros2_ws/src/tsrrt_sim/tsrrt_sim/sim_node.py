@@ -57,7 +57,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, wrap_angle
 from tsrrt_common.robot_model import ARM_JOINT_NAMES
-from tsrrt_common.ros_node import run_node, time_message
+from tsrrt_common.ros_node import run_node, seconds, time_message
 from tsrrt_common.scenario import load_scenario
 from tsrrt_interfaces.action import FollowJointTrajectory
 from tsrrt_interfaces.msg import ObjectState, ObjectStateArray
@@ -410,17 +410,16 @@ class SimNode(Node):
         points = trajectory_msg.points
         trajectory = validate_trajectory(
             list(trajectory_msg.joint_names),
-            [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in points],
+            [seconds(p.time_from_start) for p in points],
             [list(p.positions) for p in points], [list(p.velocities) for p in points],
             [list(p.accelerations) for p in points], self.world.kinematics.limits)
         tolerances = resolve_tolerances(
             self.world.controller.default_tolerances,
             [JointToleranceOverride(t.name, t.position, t.velocity) for t in goal.path_tolerance],
             [JointToleranceOverride(t.name, t.position, t.velocity) for t in goal.goal_tolerance],
-            goal.goal_time_tolerance.sec + goal.goal_time_tolerance.nanosec * 1e-9)
+            seconds(goal.goal_time_tolerance))
         header_stamp = trajectory_msg.header.stamp
-        start = (header_stamp.sec + header_stamp.nanosec * 1e-9
-                 if (header_stamp.sec or header_stamp.nanosec) else None)
+        start = seconds(header_stamp) if (header_stamp.sec or header_stamp.nanosec) else None
         return trajectory, tolerances, start
 
     def _start_execution(self, trajectory: JointTrajectory, tolerances: Tolerances,
