@@ -1,5 +1,5 @@
-"""What every tsrrt node shares with rclpy: a race-free action client, the node's main loop
-and time stamps.
+"""What every tsrrt node shares with rclpy: a race-free action client, an executor that does
+not spin idle, the node's main loop and time stamps.
 
 The one module of tsrrt_common that imports rclpy; the ROS-free cores never import it.
 """
@@ -16,7 +16,13 @@ import rclpy.action
 from builtin_interfaces.msg import Duration as DurationMessage
 from builtin_interfaces.msg import Time as TimeMessage
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import (
+    ConditionReachedException,
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    ShutdownException,
+    TimeoutException,
+)
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 
@@ -25,6 +31,7 @@ from tsrrt_common.errors import TsrrtError
 # A node still shutting down this long after it began prints every thread's stack to stderr (its
 # log): a process that hangs on a signal is otherwise only a SIGKILL and a silent log.
 SHUTDOWN_REPORT_S = 10.0
+HANDOFF_POLL_S = 0.1  # how often a spin waiting for a worker to start checks for shutdown
 
 
 def time_message(seconds: float) -> TimeMessage:
@@ -69,6 +76,44 @@ class ActionClient(rclpy.action.ActionClient):
             return super().take_data()
 
 
+class HandoffExecutor(MultiThreadedExecutor):
+    """rclpy's MultiThreadedExecutor without its idle spinning (ros2/rclpy#1452).
+
+    In rclpy 7.1 (Jazzy) a callback handed to the thread pool but not yet started still counts as
+    work to hand out, so until a worker picks it up (which the spinning thread, holding the GIL,
+    delays) the executor hands it out again and builds and waits on a new wait set at once. Idle,
+    with /clock and /joint_states at 20 Hz, each tsrrt node went round that loop 300-1600 times a
+    second, 15-75 % of a core each on the 2-core machine the graph runs on, and perception fell
+    behind the camera. Upstream fixed it (ros2/rclpy#1547) after the wheels pinned here were
+    built; here the spinning thread waits until each callback has started before it looks for
+    more work.
+    """
+
+    def _spin_once_impl(self, timeout_sec: float | None = None,
+                        wait_condition: Callable[[], bool] = lambda: False) -> None:
+        try:
+            handler, _, _ = self.wait_for_ready_callbacks(timeout_sec, None, wait_condition)
+        except (ExternalShutdownException, ShutdownException, TimeoutException,
+                ConditionReachedException):
+            return
+        started = threading.Event()
+
+        def start() -> None:
+            started.set()
+            handler()
+
+        self._executor.submit(start)
+        self._futures.append(handler)
+        # Every worker may be busy (callbacks waiting on other servers): keep noticing shutdown.
+        while not started.wait(HANDOFF_POLL_S):
+            if self._is_shutdown or not self._context.ok():
+                break
+        for future in self._futures[:]:
+            if future.done():
+                self._futures.remove(future)
+                future.result()  # raise any exception of the callback
+
+
 def run_node(make_node: Callable[[], Node], name: str, threads: int,
              args: list[str] | None = None) -> None:
     """Spin a node until SIGINT/SIGTERM; a bad file or parameter refuses to start (exit 1).
@@ -79,7 +124,7 @@ def run_node(make_node: Callable[[], Node], name: str, threads: int,
     rclpy.init(args=args)
     node = None
     refused = False
-    executor = MultiThreadedExecutor(num_threads=threads)
+    executor = HandoffExecutor(num_threads=threads)
     try:
         node = make_node()
         executor.add_node(node)
