@@ -1,5 +1,6 @@
 """The PyBullet world: resting objects, tracking, goal outcomes, disturbances and the camera."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -172,6 +173,19 @@ def test_disturb_moves_the_object_by_the_offset(world):
     assert math.dist((settled.x, settled.y), (after.x, after.y)) < 5e-4
     assert angle_difference_modulo_symmetry(settled.theta, before.theta + 0.3, 2) == \
         pytest.approx(0.0, abs=5e-3)
+
+
+def test_an_idle_scene_looks_the_same_and_a_moved_one_does_not(world):
+    """The sim node reuses the last frame for a scene that looks like it (looks_like)."""
+    world.settle(3.0)
+    resting = world.visual_state()
+    world.settle(2.0)
+    assert resting.looks_like(world.visual_state())
+    world.disturb_object("eraser", 0.001, 0.0, 0.0)
+    assert not resting.looks_like(world.visual_state())
+    moved_arm = dataclasses.replace(resting, joint_positions=tuple(
+        np.add(resting.joint_positions, [0.0, 1e-3, 0, 0, 0, 0, 0])))
+    assert not resting.looks_like(moved_arm)
 
 
 @pytest.mark.parametrize("object_id, offset, reason", [

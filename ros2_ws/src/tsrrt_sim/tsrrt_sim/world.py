@@ -47,6 +47,9 @@ SPINNING_FRICTION = 1e-3
 TABLE_COLOR = (0.55, 0.45, 0.35, 1.0)
 ARM_COLOR = (0.92, 0.92, 0.92, 1.0)
 DEFAULT_CAMERA = OverheadCamera()
+# Largest change (rad, m, quaternion component) a scene may show and still look the same: a
+# hundredth of a millimetre, where resting bodies and the held arm drift by less.
+STILL_TOLERANCE = 1e-5
 DEFAULT_GAINS = ControllerGains()
 DEFAULT_TOLERANCES = Tolerances.uniform(path_position=0.1, path_velocity=0.0,
                                         goal_position=0.01, goal_velocity=0.01, goal_time=1.0)
@@ -78,6 +81,20 @@ class VisualState:
     joint_positions: tuple[float, ...]
     body_poses: dict[str, tuple[tuple[float, ...], tuple[float, ...]]]
     sim_time: float
+
+    def looks_like(self, other: VisualState, tolerance: float = STILL_TOLERANCE) -> bool:
+        """True when the camera cannot tell the two scenes apart: the same bodies, and no
+        joint angle, coordinate or quaternion component differing by more than `tolerance`
+        (a pixel on the table is about 0.6 mm)."""
+        if self.body_poses.keys() != other.body_poses.keys():
+            return False
+        values = [*self.joint_positions]
+        others = [*other.joint_positions]
+        for body, (position, orientation) in self.body_poses.items():
+            other_position, other_orientation = other.body_poses[body]
+            values += [*position, *orientation]
+            others += [*other_position, *other_orientation]
+        return bool(np.max(np.abs(np.subtract(values, others))) <= tolerance)
 
 
 @dataclass(frozen=True)
