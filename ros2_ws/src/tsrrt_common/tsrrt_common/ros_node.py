@@ -32,6 +32,11 @@ from tsrrt_common.errors import TsrrtError
 # log): a process that hangs on a signal is otherwise only a SIGKILL and a silent log.
 SHUTDOWN_REPORT_S = 10.0
 HANDOFF_POLL_S = 0.1  # how often a spin waiting for a worker to start checks for shutdown
+# Longest wait asked of perception in one request for a settled observation. A service response
+# can be lost: rmw_fastrtps drops one sent before the server has matched a new client's reader
+# ("failed to send response (timeout)", seen after a perception restart), and the client then
+# hears nothing; a longer wait is asked as several requests, so a lost answer costs this much.
+SETTLE_REQUEST_S = 2.0
 
 
 def time_message(seconds: float) -> TimeMessage:

@@ -47,7 +47,13 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.robot_model import ARM_JOINT_NAMES
-from tsrrt_common.ros_node import ActionClient, run_node, seconds, time_message
+from tsrrt_common.ros_node import (
+    SETTLE_REQUEST_S,
+    ActionClient,
+    run_node,
+    seconds,
+    time_message,
+)
 from tsrrt_executor.errors import IKError, PrimitiveError, TrajectoryError, UnreachableError
 from tsrrt_executor.inverse_kinematics import PusherIK
 from tsrrt_executor.primitive_plan import (
@@ -312,12 +318,13 @@ class ExecutorNode(Node):
         problem = "no settled observation"
         while (remaining := deadline - time.monotonic()) > 0.0:
             # Never ask for less than a few frames' worth: a sliver of time cannot succeed.
-            wait_s = max(remaining, 0.5)
+            wait_s = min(max(remaining, 0.5), SETTLE_REQUEST_S)
             future = self.settled_client.call_async(GetSettledObjects.Request(
                 timeout_s=wait_s, not_before=time_message(not_before)))
-            if not self._wait(future, wait_s + timeout, goal_handle):
-                raise GoalFailed(Result.OBJECT_LOST, "perception did not answer the request "
-                                                     "for a settled observation")
+            if not self._wait(future, wait_s + SETTLE_REQUEST_S, goal_handle):
+                self.settled_client.remove_pending_request(future)
+                problem = "perception did not answer the request for a settled observation"
+                continue
             response = future.result()
             if not response.success:
                 problem = f"perception: {response.message}"

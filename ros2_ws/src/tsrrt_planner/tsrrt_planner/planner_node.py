@@ -49,7 +49,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, footprint_polygon
-from tsrrt_common.ros_node import ActionClient, run_node
+from tsrrt_common.ros_node import SETTLE_REQUEST_S, ActionClient, run_node
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_executor.push_primitives import primitives_for
 from tsrrt_executor.reachability import default_map
@@ -362,16 +362,22 @@ class PlannerNode(Node):
             raise GoalFailed("NO_OBSERVATION",
                              "perception's /perception/get_settled_objects is not available")
         timeout = self._param("observe_timeout_s")
-        future = self.settled_client.call_async(GetSettledObjects.Request(
-            timeout_s=timeout, not_before=not_before or TimeMessage()))
-        if not wait_for_future(future, timeout + 5.0):
-            raise GoalFailed("NO_OBSERVATION",
-                             f"no settled observation within {timeout:.0f} s")
-        response = future.result()
-        if not response.success:
-            raise GoalFailed("NO_OBSERVATION",
-                             f"perception: {response.message}")
-        return list(response.objects.objects)
+        deadline = time.monotonic() + timeout
+        problem = "perception did not answer"
+        while (remaining := deadline - time.monotonic()) > 0.0:
+            wait_s = min(max(remaining, 0.5), SETTLE_REQUEST_S)
+            future = self.settled_client.call_async(GetSettledObjects.Request(
+                timeout_s=wait_s, not_before=not_before or TimeMessage()))
+            if not wait_for_future(future, wait_s + SETTLE_REQUEST_S):
+                self.settled_client.remove_pending_request(future)
+                problem = "perception did not answer"
+                continue
+            response = future.result()
+            if response.success:
+                return list(response.objects.objects)
+            problem = f"perception: {response.message}"
+        raise GoalFailed("NO_OBSERVATION",
+                         f"no settled observation within {timeout:.0f} s ({problem})")
 
     def execute_primitive(self, object_id: str, primitive: int, push_length: float,
                           cancelled: Callable[[], bool]) -> ExecutePrimitive.Result:
