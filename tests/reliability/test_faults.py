@@ -215,8 +215,9 @@ def test_perception_restart_recovers_the_same_ids_at_the_same_poses(graph: TaskG
     observed = graph.probe.record(ObjectStateArray, "/planner/observed")
     handle = graph.probe.send_goal(graph.plan_client, PlanTask.Goal(budget_s=0.5))
     wrapped = graph.probe.wait_for(handle.get_result_async(), FAILURE_TIMEOUT_S)
-    # A rare failure here (no settled observation within 15 s, once in CI) left nothing to read:
-    # the restarted perception's log goes with it.
+    # A rare failure here (no settled observation within 15 s, twice in CI) was a response the
+    # restarted perception sent but rmw_fastrtps dropped ("failed to send response (timeout)" in
+    # its log); the planner now asks again (SETTLE_REQUEST_S). The log goes with any failure.
     planned = (PlanTask.Result.SUCCESS, PlanTask.Result.NO_IMPROVEMENT)
     assert wrapped.result.error_code in planned, \
         f"{wrapped.result.error_msg}\n{graph.processes['perception_node'].log()[-4000:]}"
