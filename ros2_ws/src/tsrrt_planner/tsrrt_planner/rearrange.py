@@ -68,8 +68,10 @@ def _candidate_pushes(problem: PlanningProblem, state: np.ndarray, index: int,
     error[2] = (error[2] + period / 2) % period - period / 2 if period > 0 else 0.0
     w2 = np.array([1.0, 1.0, weight**2])
     ideal = (u * error * w2).sum(1) / np.maximum((u * u * w2).sum(1), 1e-12)
-    steer = np.clip(np.outer(ideal, STEER_FRACTIONS), 0.0, problem.max_length)
-    fixed = np.broadcast_to(np.array(FIXED_LENGTHS), (len(primitives), len(FIXED_LENGTHS)))
+    longest = problem.max_lengths[index]
+    steer = np.clip(np.outer(ideal, STEER_FRACTIONS), 0.0, longest)
+    fixed = np.broadcast_to(np.minimum(FIXED_LENGTHS, longest),
+                            (len(primitives), len(FIXED_LENGTHS)))
     lengths = np.concatenate([steer, fixed], axis=1)  # (p, m)
     keep = lengths >= problem.min_length
     return np.broadcast_to(primitives[:, None], lengths.shape)[keep], lengths[keep]

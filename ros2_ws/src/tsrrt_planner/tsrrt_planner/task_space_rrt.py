@@ -382,7 +382,7 @@ def merge_runs(problem: PlanningProblem, steps: list[Push]) -> list[Push]:
     k = 0
     while k < len(steps) - 1:
         (o1, p1, l1), (o2, p2, l2) = steps[k], steps[k + 1]
-        if (o1, p1) == (o2, p2) and l1 + l2 <= problem.max_length:
+        if (o1, p1) == (o2, p2) and l1 + l2 <= problem.max_lengths[o1]:
             tail = [(o1, p1, l1 + l2)] + steps[k + 2:]
             replayed = replay_from(problem, states[k], tail)
             if replayed is not None and float(problem.objective.cost(replayed[-1])) <= (
@@ -721,7 +721,7 @@ def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
     if not usable.any():
         return None
     objects, primitives = objects[usable], primitives[usable]
-    ideal = np.minimum(ideal[usable], problem.max_length)
+    ideal = np.minimum(ideal[usable], problem.max_lengths[objects])
     lengths = np.concatenate([np.maximum(ideal * f, problem.min_length)
                               for f in (1.0, 0.97, 0.75, 0.5, 0.25)])
     objects, primitives = np.tile(objects, 5), np.tile(primitives, 5)
