@@ -87,8 +87,8 @@ class HandoffExecutor(MultiThreadedExecutor):
     In rclpy 7.1 (Jazzy) a callback handed to the thread pool but not yet started still counts as
     work to hand out, so until a worker picks it up (which the spinning thread, holding the GIL,
     delays) the executor hands it out again and builds and waits on a new wait set at once. Idle,
-    with /clock and /joint_states at 20 Hz, each tsrrt node went round that loop 300-1600 times a
-    second, 15-75 % of a core each on the 2-core machine the graph runs on, and perception fell
+    with /clock and /joint_states at 20 Hz, each tsrrt node went round that loop 150-1600 times a
+    second, 9-64 % of a core each on the 2-core machine the graph runs on, and perception fell
     behind the camera. Upstream fixed it (ros2/rclpy#1547) after the wheels pinned here were
     built; here the spinning thread waits until each callback has started before it looks for
     more work.

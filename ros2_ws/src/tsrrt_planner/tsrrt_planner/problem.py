@@ -7,6 +7,8 @@ metre, so steering a push towards a target is a one-dimensional least-squares pr
 (task_space_rrt.steer_push).
 
 A push is valid when (all checked in `pushes_valid`, vectorised over candidates):
+* it is no longer than the object's `longest_push` (the learned length, or twice that for an
+  object whose pushes are consistent);
 * the object ends on the table, clear of every other object and obstacle (collision.py), and so
   does every intermediate pose at most `max_substep` of travel apart (no tunnelling through a
   neighbour during a long push);
