@@ -76,9 +76,10 @@ def longest_push(models: ModelStore, spec: ObjectSpec) -> float:
     7.8 deg beyond 7 cm), and in the closed loop its 8-10 cm pushes ended 1-2.6 cm off and
     forced replans; such an object is pushed no further than it was learned."""
     lengths = []
-    for primitive in (1, 2, 3, 4):      # the translations, along object x (1, 2) and y (3, 4)
+    translations = [p for p in primitives_for(spec.shape) if p <= 4]  # along x (1, 2), y (3, 4)
+    for primitive in translations:
         model = models.model_for(spec.id, spec.object_class, primitive)
-        if model is None or primitive not in primitives_for(spec.shape):
+        if model is None:
             continue
         std = np.sqrt(model.variance)
         side = std[1] if primitive <= 2 else std[0]

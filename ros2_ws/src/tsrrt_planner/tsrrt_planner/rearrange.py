@@ -70,8 +70,8 @@ def _candidate_pushes(problem: PlanningProblem, state: np.ndarray, index: int,
     ideal = (u * error * w2).sum(1) / np.maximum((u * u * w2).sum(1), 1e-12)
     longest = problem.max_lengths[index]
     steer = np.clip(np.outer(ideal, STEER_FRACTIONS), 0.0, longest)
-    fixed = np.broadcast_to(np.minimum(FIXED_LENGTHS, longest),
-                            (len(primitives), len(FIXED_LENGTHS)))
+    detours = np.unique(np.minimum(FIXED_LENGTHS, longest))  # one 5 cm push, not two
+    fixed = np.broadcast_to(detours, (len(primitives), len(detours)))
     lengths = np.concatenate([steer, fixed], axis=1)  # (p, m)
     keep = lengths >= problem.min_length
     return np.broadcast_to(primitives[:, None], lengths.shape)[keep], lengths[keep]
