@@ -505,6 +505,8 @@ class _TsrrtSearch(_Search):
         if target is not None:
             self.add_target(np.asarray(target, float),
                             float(self.problem.objective.cost(target)))
+            self.problem = self.problem.with_face_allowance(
+                [variant for _, variant in self.targets], self.groups)
 
     def run(self) -> None:
         if self.previous_goal is not None:

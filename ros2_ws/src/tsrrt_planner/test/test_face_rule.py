@@ -1,0 +1,105 @@
+"""The face rule (PlanningProblem.with_face_allowance): pushes may not strand objects near the
+robot's base, where the arm cannot get behind them, beyond what the target itself needs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tsrrt_common.scenario import load_scenario
+from tsrrt_planner.bench import default_models
+from tsrrt_planner.lower_bound import lower_bound
+from tsrrt_planner.model_learning import ModelStore
+from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.task_space_rrt import (
+    TASK_SPACE_RRT,
+    equivalent_targets,
+    interchangeable_groups,
+)
+
+
+@pytest.fixture(scope="module")
+def clean() -> PlanningProblem:
+    scenario = load_scenario("clean")
+    return PlanningProblem(scenario, ModelStore.load(default_models(scenario)))
+
+
+# The remote across the table (long axis along y): the arm reaches every face at x = 0.42 m;
+# at 0.36 m not its back face (the approach point 4 cm behind it is too close to the base).
+ACROSS = np.pi / 2
+FREE, STRANDED = [0.42, 0.0, ACROSS], [0.36, 0.0, ACROSS]
+TOWARDS_BASE = 3   # the remote's primitive that pushes it along -x when it lies across
+
+
+def with_remote_at(problem: PlanningProblem, pose: list[float]) -> np.ndarray:
+    state = problem.start.copy()
+    state[problem.objects.ids.index("remote")] = pose
+    return state
+
+
+def test_reachable_faces_counts_approach_points_the_arm_reaches(clean):
+    remote = clean.objects.ids.index("remote")
+    poses = np.array([FREE, STRANDED])
+    assert clean.reachable_faces(np.array([remote, remote]), poses).tolist() == [4, 3]
+
+
+def test_a_push_that_strands_an_object_is_refused_unless_the_target_needs_it(clean):
+    remote = clean.objects.ids.index("remote")
+    start = with_remote_at(clean, FREE)
+    push = (np.array([remote]), np.array([TOWARDS_BASE]), np.array([0.06]))
+    after = clean.predict(start, *push)
+    assert clean.reachable_faces(push[0], after).tolist() == [3]
+    groups = interchangeable_groups(clean)
+
+    strict = clean.with_face_allowance([with_remote_at(clean, FREE)], groups)
+    assert strict.face_allowance[remote] == 0
+    assert not strict.pushes_valid(start, *push)[0]
+    # a shorter push keeps every face
+    assert strict.pushes_valid(start, push[0], push[1], np.array([0.04]))[0]
+    # with a target that strands the remote anyway, or with the rule off, the push is fine
+    lenient = clean.with_face_allowance([with_remote_at(clean, STRANDED)], groups)
+    assert lenient.face_allowance[remote] == 1
+    assert lenient.pushes_valid(start, *push)[0]
+    assert clean.pushes_valid(start, *push)[0]
+    assert clean.face_allowance is None   # the copy carries the rule, not the original
+
+
+def test_an_object_that_starts_stranded_may_stay_so(clean):
+    remote = clean.objects.ids.index("remote")
+    start = with_remote_at(clean, STRANDED)
+    strict = clean.with_face_allowance([with_remote_at(clean, FREE)],
+                                       interchangeable_groups(clean))
+    objects = np.full(4, remote)
+    primitives = np.array([TOWARDS_BASE, TOWARDS_BASE, 5, 5])   # further in, and turning
+    lengths = np.array([0.02, 0.04, 0.02, 0.04])
+    final = strict.predict(start, objects, primitives, lengths)
+    assert (strict.reachable_faces(objects, final) == 3).all()
+    assert strict.pushes_valid(start, objects, primitives, lengths).all()
+
+
+def test_tset6_allows_one_stranded_plate_and_no_stranded_platter():
+    """Every variant of tset6's optimum has a plate in the corner near the base where the arm
+    cannot get behind it; the platters fit where they keep every face."""
+    scenario = load_scenario("tset6")
+    problem = PlanningProblem(scenario, ModelStore.load(default_models(scenario)))
+    bound = lower_bound(problem, starts=4)
+    strict = problem.with_face_allowance(equivalent_targets(problem, bound.state),
+                                         interchangeable_groups(problem))
+    allowance = {object_id: strict.face_allowance[strict.face_group[i]]
+                 for i, object_id in enumerate(problem.objects.ids)}
+    assert allowance == {"plate_1": 1, "plate_2": 1, "plate_3": 1, "plate_4": 1,
+                         "platter_1": 0, "platter_2": 0}
+
+
+def test_improved_plans_on_clean_strand_nothing(clean):
+    """The optimum of clean keeps every face (a row across the table's centre), so no plan
+    may leave an object stranded that did not start so."""
+    bound = lower_bound(clean, starts=4)
+    everyone = np.arange(clean.n)
+    at_start = clean.reachable_faces(everyone, clean.start)
+    for seed in (0, 1):
+        result = TASK_SPACE_RRT(clean, "tsrrt", seed, time_budget_s=None, max_nodes=300,
+                                target=bound.state)
+        for state in result.states:
+            faces = clean.reachable_faces(everyone, np.asarray(state))
+            assert ((faces == 4) | (at_start < 4)).all()
