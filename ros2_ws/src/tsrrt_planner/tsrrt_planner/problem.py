@@ -158,6 +158,9 @@ class PlanningProblem:
             o.symmetry, 1) for o in scenario.objects])
         # translation primitives (faces) per object, and the face rule (with_face_allowance)
         self.full_faces = self.available[:, :4].sum(axis=1)
+        # where the ball lands for each translation primitive, in the object frame (n, 4, 2)
+        self.approach_offsets = (self.contact[:, :4] - (BALL_RADIUS + APPROACH_CLEARANCE)
+                                 * self.direction[:, :4])
         self.face_group = np.arange(self.n)
         self.face_allowance: np.ndarray | None = None
 
@@ -229,7 +232,8 @@ class PlanningProblem:
         ok = (lengths <= self.max_lengths[objects] + 1e-9) & self.checker.moved_objects_valid(
             state, objects, final)
         if self.face_allowance is not None:
-            ok &= self.keeps_faces(state, objects, before, final)
+            alive = np.nonzero(ok)[0]
+            ok[alive] = self.keeps_faces(state, objects[alive], before[alive], final[alive])
         # intermediate poses, every max_substep of travel
         travel = lengths * np.maximum(np.linalg.norm(u[:, :2], axis=1),
                                       np.abs(u[:, 2]) * self.objects.half_length[objects])
@@ -254,30 +258,34 @@ class PlanningProblem:
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start
         from an approach point the arm reaches."""
-        rows = np.repeat(np.arange(len(objects)), 4)
-        primitives = np.tile(np.arange(1, 5), len(objects))
-        approach, _ = self.ball_path(poses, objects[rows], primitives, np.zeros(len(rows)),
-                                     poses[rows])
-        reach = self.reachability.reachable(approach) & self.available[objects[rows],
-                                                                       primitives - 1]
-        return reach.reshape(len(objects), 4).sum(axis=1)
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        offsets = self.approach_offsets[objects]                       # (k, 4, 2)
+        approach = poses[:, None, :2] + np.stack(
+            [c[:, None] * offsets[..., 0] - s[:, None] * offsets[..., 1],
+             s[:, None] * offsets[..., 0] + c[:, None] * offsets[..., 1]], axis=-1)
+        reach = self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(objects), 4)
+        return (reach & self.available[objects, :4]).sum(axis=1)
 
     def keeps_faces(self, state: np.ndarray, objects: np.ndarray, before: np.ndarray,
                     final: np.ndarray) -> np.ndarray:
         """(k,) the face rule (`with_face_allowance`) for pushes of `objects` from `before`
         to `final` (k, 3), the other objects as in `state`."""
-        everyone = np.arange(self.n)
-        stranded_now = self.reachable_faces(everyone, state) < self.full_faces
-        group = self.face_group[objects]
-        full = self.full_faces[objects]
         faces_before = self.reachable_faces(objects, before)
         faces_after = self.reachable_faces(objects, final)
+        ok = faces_after >= faces_before
+        losing = np.nonzero(~ok)[0]
+        if len(losing) == 0:
+            return ok
+        stranded_now = self.reachable_faces(np.arange(self.n), state) < self.full_faces
+        objects, group = objects[losing], self.face_group[objects[losing]]
+        full = self.full_faces[objects]
+        was_stranded = faces_before[losing] < full
         stranded_before = (np.bincount(self.face_group, weights=stranded_now,
                                        minlength=self.n)[group]
-                           - stranded_now[objects] + (faces_before < full))
-        stranded_after = stranded_before - (faces_before < full) + (faces_after < full)
-        return (faces_after >= faces_before) | (
-            stranded_after <= np.maximum(self.face_allowance[group], stranded_before))
+                           - stranded_now[objects] + was_stranded)
+        stranded_after = stranded_before - was_stranded + (faces_after[losing] < full)
+        ok[losing] = stranded_after <= np.maximum(self.face_allowance[group], stranded_before)
+        return ok
 
     def path_reachable(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """(k,) True when the arm reaches every point of the ball paths start-end (k, 2),
