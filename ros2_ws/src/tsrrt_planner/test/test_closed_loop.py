@@ -335,15 +335,19 @@ def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
 
     def recording_plan_from(*args, **kwargs):
         problem, result = real_plan_from(*args, **kwargs)
-        calls.append((kwargs.get("replaced"), result))
+        calls.append((kwargs.get("replaced"), result, kwargs.get("good_enough_cost")))
         return problem, result
 
     monkeypatch.setattr(closed_loop, "plan_from", recording_plan_from)
     _, report = _task("tset3", seed=0, bump_after=2)
     assert report.replans >= 1
-    assert calls[0][0] is None
+    assert calls[0][0] is None and calls[0][2] is None   # a fresh plan uses its whole budget
     replaced, executed = calls[1][0]
     assert replaced is calls[0][1] and executed == 2   # the bump came after the second push
+    # the replan may stop once it is within `convergence` of what the replaced plan promised
+    promised = float(np.min(replaced.costs))
+    assert promised < calls[1][2] <= promised + 0.01 * max(abs(promised), report.start_cost
+                                                           - report.lower_bound) + 1e-12
 
 
 def test_improvement_is_judged_against_the_task_range_when_the_optimum_is_zero() -> None:

@@ -110,6 +110,19 @@ def test_time_budget_stops(problem):
     assert result.stop_reason == "time" and result.elapsed_s < 2.0
 
 
+@pytest.mark.parametrize("mode", MODES)
+def test_a_good_enough_state_stops_the_search(problem, bound, mode):
+    full = TASK_SPACE_RRT(problem, mode, seed=1, time_budget_s=None, max_nodes=150,
+                          lower_bound_cost=bound.cost, target=bound.state)
+    start_cost = float(full.costs[0])
+    good_enough = start_cost - 0.2 * (start_cost - full.best_cost)
+    stopped = TASK_SPACE_RRT(problem, mode, seed=1, time_budget_s=None, max_nodes=150,
+                             lower_bound_cost=bound.cost, target=bound.state,
+                             good_enough_cost=good_enough)
+    assert stopped.stop_reason == "recovered"
+    assert stopped.best_cost <= good_enough and stopped.nodes < full.nodes
+
+
 @pytest.mark.parametrize("kwargs,message", [
     ({"mode": "astar"}, "unknown planner mode"),
     ({"time_budget_s": None}, "give a time budget"),

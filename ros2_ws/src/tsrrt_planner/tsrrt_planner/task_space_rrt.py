@@ -102,7 +102,7 @@ class PlanResult:
         states: (m + 1, n, 3) predicted states along the plan, from the start.
         costs: (m + 1,) objective along the plan.
         trace: (elapsed_s, nodes, best_cost) each time the best cost improved.
-        stop_reason: "time", "nodes", "cancelled" or "converged".
+        stop_reason: "time", "nodes", "cancelled", "converged" or "recovered".
     """
 
     mode: str
@@ -171,8 +171,10 @@ class _Search:
 
     def __init__(self, problem: PlanningProblem, mode: str, seed: int, config: PlannerConfig,
                  time_budget_s: float | None, max_nodes: int | None, progress: Progress | None,
-                 cancel: Cancel | None, orientation_weights: np.ndarray) -> None:
+                 cancel: Cancel | None, orientation_weights: np.ndarray,
+                 good_enough_cost: float | None = None) -> None:
         self.problem, self.mode, self.seed, self.config = problem, mode, seed, config
+        self.good_enough_cost = good_enough_cost
         self.rng = np.random.default_rng(seed)
         self.time_budget_s, self.max_nodes = time_budget_s, max_nodes
         self.progress = progress
@@ -209,6 +211,8 @@ class _Search:
             self.trace.append((self.elapsed(), self.tree.size, cost))
             if self.progress is not None:
                 self.progress(ProgressInfo(self.elapsed(), self.tree.size, cost))
+            if self.good_enough_cost is not None and cost <= self.good_enough_cost:
+                raise _Stop("recovered")
         return index
 
     def follow(self, node: int, path: list[Push]) -> int:
@@ -848,7 +852,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
                    config: PlannerConfig | None = None, lower_bound_cost: float | None = None,
                    target: np.ndarray | None = None,
                    warm_start: Sequence[PlanStep] = (),
-                   previous_goal: np.ndarray | None = None) -> PlanResult:
+                   previous_goal: np.ndarray | None = None,
+                   good_enough_cost: float | None = None) -> PlanResult:
     """Plan pushes that lower the objective; returns the best plan found (anytime).
 
     Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
@@ -870,6 +875,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
             result is no worse than that.
         previous_goal: tsrrt only: the final state (n, 3) of the plan this one replaces;
             REARRANGE steers there first.
+        good_enough_cost: stop as soon as a state this good is found (a replan that has
+            recovered what the plan it replaces promised).
     """
     if mode not in MODES:
         raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
@@ -897,7 +904,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     warm_pushes = [(index[step.object_id], step.primitive, step.push_length)
                    for step in warm_start]
     arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
-                 weights)
+                 weights, good_enough_cost)
     search: _Search
     if mode == "greedy":
         search = _GreedySearch(*arguments)
