@@ -33,7 +33,7 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   from the observed state) and REARRANGEs towards that plan's final state first: a fresh search
   often lands in a worse basin than the plan it replaces (clean, session 4: first plan 0.111
   predicted, the fresh replan after its third push 0.157). It stops as soon as it has recovered
-  (within `convergence`) the cost the replaced plan promised: with the whole budget for every
+  (within `convergence` of it) the cost the replaced plan promised: with the whole budget for every
   plan, clean demos spent 51-82 s of 112-172 s planning (4-8 replans).
 """
 
@@ -407,9 +407,11 @@ class TaskSettings:
     # Clearance (m) plans keep between objects: pushes land within a few millimetres, and a plan
     # that leaves less than that makes its objects touch and push each other.
     margin: float = 0.005
-    # A plan that climbs more than this many times what it finally gains is a detour for a
-    # polish, of which only the part before the climb is executed.
+    # A plan that climbs more than this many times what it finally gains, and gains less than
+    # `polish_share` of the task's range (start cost to lower bound), is a detour for a polish,
+    # of which only the part before the climb is executed.
     detour_max_climb: float = 2.0
+    polish_share: float = 0.1
 
 
 @dataclass
@@ -489,13 +491,14 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             report.stop_reason = "cancelled"
             return report
         on_event("planning", report)
-        # A replan may stop once it has recovered (within `convergence`) what the plan it
-        # replaces promised; a fresh plan, which decides the basin or that the task has
-        # converged, uses its whole budget.
+        # A replan may stop once it has recovered what the plan it replaces promised, within
+        # `convergence` of that cost (not of the task's range: a chain of replans would creep
+        # away from a zero optimum by that much each, obstacle 0.4 -> 8 mm in four); a fresh
+        # plan, which decides the basin or that the task has converged, uses its whole budget.
         good_enough = None
         if replaced is not None:
             promised = float(np.min(replaced[0].costs))
-            good_enough = promised + settings.convergence * _scale(promised, report)
+            good_enough = promised + settings.convergence * abs(promised)
         problem, result = plan_from(scenario, observed, store, reachability, settings,
                                     lower_bound_cost, target, cancelled, replaced=replaced,
                                     good_enough_cost=good_enough)
@@ -508,7 +511,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         report.final_cost = current
         if not report.costs:
             report.costs.append(current)
-        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings)
+        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings,
+                                      report.start_cost - report.lower_bound)
         # what executing the chosen part of the plan predicts (not the unexecuted rest's best)
         report.predicted_cost = float(result.costs[steps])
         improvement = current - float(result.costs[steps])
@@ -577,35 +581,37 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 break
 
 
-def steps_worth_executing(costs: np.ndarray, settings: TaskSettings) -> int:
+def steps_worth_executing(costs: np.ndarray, settings: TaskSettings,
+                          task_range: float = math.inf) -> int:
     """How many pushes of a plan with these costs (start first) to execute.
 
     All, unless the plan is a detour for a polish: it climbs more than `detour_max_climb` times
-    what it finally gains (near an optimum TASK_SPACE_RRT may park an object to win a
-    millimetre; executed, its errors cost more than the polish is worth). Of such a plan, the
-    part before the climb. A detour of the gain's own size (objects moved aside to let another
-    through) is the point of planning, and is executed.
+    what it finally gains, and gains less than `polish_share` of `task_range` (start cost to
+    lower bound; near an optimum TASK_SPACE_RRT may park an object to win a millimetre;
+    executed, its errors cost more than the polish is worth). Of such a plan, the part before
+    the climb. A detour of the gain's own size (objects moved aside to let another through),
+    or one that gains much of what the task is about (the obstacle task: the eraser 13 cm
+    from its goal on the far side of the obstacle, where the way round climbs more than twice
+    the gain at first, and cutting it left nothing to execute and ended the task there), is
+    the point of planning, and is executed.
     """
     current, best = float(costs[0]), float(costs.min())
     climb, gain = float(costs.max()) - current, current - best
-    if climb > settings.detour_max_climb * gain:
+    polish = not gain >= settings.polish_share * task_range   # NaN range: a polish
+    if polish and climb > settings.detour_max_climb * gain:
         return int(np.argmin(costs[:int(np.argmax(costs)) + 1]))
     return len(costs) - 1
 
 
 def _negligible(improvement: float, cost: float, report: TaskReport,
                settings: TaskSettings) -> bool:
-    """Whether a predicted improvement is below `convergence` of `_scale`."""
-    return improvement <= settings.convergence * _scale(cost, report)
-
-
-def _scale(cost: float, report: TaskReport) -> float:
-    """The larger of the cost and the task's range (start cost to lower bound): relative to
-    it, a zero optimum is not chased to the last micrometre."""
+    """Whether a predicted improvement is below `convergence` of the larger of the cost and
+    the task's range (start cost to lower bound), so a zero optimum is not chased to the last
+    micrometre."""
     scale = max(abs(cost), 1e-9)
     if math.isfinite(report.lower_bound) and math.isfinite(report.start_cost):
         scale = max(scale, report.start_cost - report.lower_bound)
-    return scale
+    return improvement <= settings.convergence * scale
 
 
 def _state_of(problem: PlanningProblem, poses: Mapping[str, Pose2D]) -> np.ndarray:
