@@ -16,8 +16,9 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
-  Of a plan whose costs climb more than twice as high on the way as it finally gains (a
-  polish), only the part before the climb is executed (none, when that part gains nothing).
+  Of a plan whose costs climb more than twice as high on the way as it finally gains, for less
+  than a tenth of the task's range (a polish), only the part before the climb is executed
+  (none, when that part gains nothing).
   Relative to the larger of the cost and the task's range (start cost to lower bound): where
   the optimum is zero, 1 % of the cost is micrometres, and plans that detour far for that much
   were executed. For the same reason a plan is abandoned for a fresh one once what is left of

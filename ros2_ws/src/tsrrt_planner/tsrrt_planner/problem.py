@@ -174,7 +174,7 @@ class PlanningProblem:
         stranded at x = 0.32-0.38 m. An object short of reachable faces (`reachable_faces`
         below its translation primitives) is stranded; a push may strand an object only while
         its group (`groups`: interchangeable objects; others alone) then has no more stranded
-        objects than it had or than the best of the equally good `targets` (n, 3) has: tset6's
+        objects than it had or than the equally good `targets` (n, 3) need (the fewest): tset6's
         optimum puts a plate in a corner near the base in every variant (one stranded plate
         allowed), but its platters fit where they keep every face (none allowed).
         """
