@@ -101,11 +101,20 @@ def test_objects_keep_being_published(listener):
 
 def test_settled_observation_follows_a_disturbance_with_the_same_id(listener):
     before = _tracked(_latest_with(listener, "plate_2"))["plate_2"]
+    true_before = {o.id: o for o in listener.truth.objects}["plate_2"]
     moved = listener.call(listener.disturb_client, DisturbObject.Request(
         object_id="plate_2", dx=-0.02, dy=-0.01, dtheta=0.0), 20.0)
     assert moved.success, moved.message
-    answer = listener.call(listener.settled_client,
-                           GetSettledObjects.Request(timeout_s=20.0, max_speed=0.0), 30.0)
+    # Ask for frames from the first one that shows the disturbance on: a request stamped by
+    # perception's own clock may still count a frame taken just before it (/clock lags the sim).
+    def shows_the_disturbance(truth: ObjectStateArray) -> bool:
+        plate = {o.id: o for o in truth.objects}["plate_2"]
+        return abs(plate.x - true_before.x + 0.02) < POSITION_TOLERANCE
+
+    assert listener.spin_until(lambda: shows_the_disturbance(listener.truth), 20.0)
+    first = next(t for t in listener.truths if shows_the_disturbance(t))
+    answer = listener.call(listener.settled_client, GetSettledObjects.Request(
+        timeout_s=20.0, max_speed=0.0, not_before=first.header.stamp), 30.0)
     assert answer.success, answer.message
     after = _tracked(answer.objects)["plate_2"]
     assert after.x - before.x == pytest.approx(-0.02, abs=POSITION_TOLERANCE)
