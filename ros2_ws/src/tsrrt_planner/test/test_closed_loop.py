@@ -499,9 +499,3 @@ def test_a_detour_is_executed_for_a_gain_of_its_size_and_cut_before_the_climb_fo
     assert steps_worth_executing(aside, settings) == 5
     straight = np.array([0.004, 0.003, 0.001])
     assert steps_worth_executing(straight, settings) == 2
-    # a polish of a task whose range is 0.16 (start cost to zero optimum) is cut ...
-    assert steps_worth_executing(polish, settings, task_range=0.16) == 1
-    # ... but a way round an obstacle that gains most of what is left is executed whole
-    around = np.array([0.13, 0.14, 0.25, 0.42, 0.30, 0.10, 0.0004])
-    assert steps_worth_executing(around, settings, task_range=0.34) == 6
-    assert steps_worth_executing(around, settings) == 0   # cut: nothing left to execute

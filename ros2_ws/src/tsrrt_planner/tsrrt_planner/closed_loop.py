@@ -16,9 +16,8 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
-  Of a plan whose costs climb more than twice as high on the way as it finally gains, for less
-  than a tenth of the task's range (a polish), only the part before the climb is executed
-  (none, when that part gains nothing).
+  Of a plan whose costs climb more than twice as high on the way as it finally gains (a
+  polish), only the part before the climb is executed (none, when that part gains nothing).
   Relative to the larger of the cost and the task's range (start cost to lower bound): where
   the optimum is zero, 1 % of the cost is micrometres, and plans that detour far for that much
   were executed. For the same reason a plan is abandoned for a fresh one once what is left of
@@ -408,11 +407,9 @@ class TaskSettings:
     # Clearance (m) plans keep between objects: pushes land within a few millimetres, and a plan
     # that leaves less than that makes its objects touch and push each other.
     margin: float = 0.005
-    # A plan that climbs more than this many times what it finally gains, and gains less than
-    # `polish_share` of the task's range (start cost to lower bound), is a detour for a polish,
-    # of which only the part before the climb is executed.
+    # A plan that climbs more than this many times what it finally gains is a detour for a
+    # polish, of which only the part before the climb is executed.
     detour_max_climb: float = 2.0
-    polish_share: float = 0.1
 
 
 @dataclass
@@ -512,8 +509,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         report.final_cost = current
         if not report.costs:
             report.costs.append(current)
-        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings,
-                                      report.start_cost - report.lower_bound)
+        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings)
         # what executing the chosen part of the plan predicts (not the unexecuted rest's best)
         report.predicted_cost = float(result.costs[steps])
         improvement = current - float(result.costs[steps])
@@ -582,24 +578,18 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 break
 
 
-def steps_worth_executing(costs: np.ndarray, settings: TaskSettings,
-                          task_range: float = math.inf) -> int:
+def steps_worth_executing(costs: np.ndarray, settings: TaskSettings) -> int:
     """How many pushes of a plan with these costs (start first) to execute.
 
     All, unless the plan is a detour for a polish: it climbs more than `detour_max_climb` times
-    what it finally gains, and gains less than `polish_share` of `task_range` (start cost to
-    lower bound; near an optimum TASK_SPACE_RRT may park an object to win a millimetre;
-    executed, its errors cost more than the polish is worth). Of such a plan, the part before
-    the climb. A detour of the gain's own size (objects moved aside to let another through),
-    or one that gains much of what the task is about (the obstacle task: the eraser 13 cm
-    from its goal on the far side of the obstacle, where the way round climbs more than twice
-    the gain at first, and cutting it left nothing to execute and ended the task there), is
-    the point of planning, and is executed.
+    what it finally gains (near an optimum TASK_SPACE_RRT may park an object to win a
+    millimetre; executed, its errors cost more than the polish is worth). Of such a plan, the
+    part before the climb. A detour of the gain's own size (objects moved aside to let another
+    through) is the point of planning, and is executed.
     """
     current, best = float(costs[0]), float(costs.min())
     climb, gain = float(costs.max()) - current, current - best
-    polish = not gain >= settings.polish_share * task_range   # NaN range: a polish
-    if polish and climb > settings.detour_max_climb * gain:
+    if climb > settings.detour_max_climb * gain:
         return int(np.argmin(costs[:int(np.argmax(costs)) + 1]))
     return len(costs) - 1
 
