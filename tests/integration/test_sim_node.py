@@ -214,9 +214,12 @@ def test_disturb_object_moves_the_ground_truth(probe):
     response = probe.call(probe.disturb, DisturbObject.Request(object_id="eraser", dx=0.0,
                                                                 dy=0.03, dtheta=0.0))
     assert response.success, response.message
+    # Frames rendered from a state captured before the call can still arrive after it: wait for
+    # the first one that shows any change, then check the change is the one asked for.
     probe.truth.clear()
-    assert probe.spin_until(lambda: len(probe.truth) >= 2)
-    after = probe.truth[-1].objects[0]
+    assert probe.spin_until(lambda: any(abs(m.objects[0].y - before.y) > 1e-4
+                                        for m in probe.truth))
+    after = next(m for m in probe.truth if abs(m.objects[0].y - before.y) > 1e-4).objects[0]
     assert after.y - before.y == pytest.approx(0.03, abs=1e-3)
     refused = probe.call(probe.disturb, DisturbObject.Request(object_id="stapler", dx=0.01))
     assert not refused.success and "unknown object 'stapler'" in refused.message
