@@ -17,6 +17,7 @@ from tsrrt_planner.task_space_rrt import (
     MODES,
     TASK_SPACE_RRT,
     PlanStep,
+    StallRule,
     interchangeable_groups,
     match_to,
 )
@@ -123,8 +124,23 @@ def test_a_good_enough_state_stops_the_search(problem, bound, mode):
     assert stopped.best_cost <= good_enough and stopped.nodes < full.nodes
 
 
+def test_a_stalled_search_stops(problem, bound):
+    """Any improvement is too little against a huge tolerance: the search stops once the
+    window has passed; against a tolerance of zero it never stalls, nor above its ceiling."""
+    stalled = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=30.0,
+                             lower_bound_cost=bound.cost, target=bound.state,
+                             stall=StallRule(0.3, 1e9))
+    assert stalled.stop_reason == "stalled" and 0.3 <= stalled.elapsed_s < 5.0
+    for patient in (StallRule(0.3, 0.0), StallRule(0.3, 1e9, ceiling=bound.cost - 1.0)):
+        result = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=1.0,
+                                lower_bound_cost=bound.cost, target=bound.state, stall=patient)
+        assert result.stop_reason == "time"
+
+
 @pytest.mark.parametrize("kwargs,message", [
     ({"mode": "astar"}, "unknown planner mode"),
+    ({"stall": StallRule(0.0, 0.1)}, "stall rule needs a window"),
+    ({"stall": StallRule(1.0, -0.1)}, "stall rule needs a window"),
     ({"time_budget_s": None}, "give a time budget"),
     ({"time_budget_s": -1.0}, "time budget must be > 0"),
     ({"max_nodes": 0}, "node budget"),

@@ -16,8 +16,11 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
-  Of a plan whose costs climb more than twice as high on the way as it finally gains (a
-  polish), only the part before the climb is executed (none, when that part gains nothing).
+  Of a plan that ends in a detour (from its best state before the climb it climbs more than
+  twice what the detour then gains), only the part before the climb is executed when the
+  detour gains less than the cost scatter the errors of the plan's pushes cause
+  (`execution_noise_cost`; none, when that part gains nothing), or when that part alone gains
+  more than the scatter (`steps_worth_executing`).
   Relative to the larger of the cost and the task's range (start cost to lower bound): where
   the optimum is zero, 1 % of the cost is micrometres, and plans that detour far for that much
   were executed. For the same reason a plan is abandoned for a fresh one once what is left of
@@ -68,7 +71,7 @@ from tsrrt_planner.model_learning import (
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import plausible_displacement, transfer_efficiency
 from tsrrt_planner.reachability import Reachability
-from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress
+from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress, StallRule
 
 # A repositioning push must gain at least this much room (m) to be worth a trial.
 REPOSITION_GAIN = 0.005
@@ -407,8 +410,11 @@ class TaskSettings:
     # Clearance (m) plans keep between objects: pushes land within a few millimetres, and a plan
     # that leaves less than that makes its objects touch and push each other.
     margin: float = 0.005
-    # A plan that climbs more than this many times what it finally gains is a detour for a
-    # polish, of which only the part before the climb is executed.
+    # Every plan but the task's first (which chooses the basin) stops once its best cost has
+    # improved by less than `convergence` (of the task's scale) in this many seconds; None: off.
+    stall_s: float | None = 2.0
+    # A plan that climbs more than this many times what its detour then gains ends in a
+    # detour; steps_worth_executing says when only the part before the climb is executed.
     detour_max_climb: float = 2.0
 
 
@@ -445,12 +451,13 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
               target: np.ndarray | None, cancel: Callable[[], bool],
               progress: Progress | None = None, max_nodes: int | None = None,
               replaced: tuple[PlanResult, int] | None = None,
-              good_enough_cost: float | None = None
+              good_enough_cost: float | None = None,
+              stall: StallRule | None = None
               ) -> tuple[PlanningProblem, PlanResult]:
     """TASK_SPACE_RRT from the observed state with the current models. A replan is given the
     plan it replaces and how many of its pushes were executed (`replaced`): the rest warm-starts
     the search, and its final state is REARRANGE's first goal. The search stops early once it
-    finds a state at `good_enough_cost`."""
+    finds a state at `good_enough_cost`, or once it stalls (`stall`)."""
     problem = PlanningProblem(scenario_at(scenario, poses), store, reachability,
                               margin=settings.margin)
     warm_start, previous_goal = (), None
@@ -463,7 +470,7 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
                             progress=progress, cancel=cancel,
                             lower_bound_cost=lower_bound_cost, target=target,
                             warm_start=warm_start, previous_goal=previous_goal,
-                            good_enough_cost=good_enough_cost)
+                            good_enough_cost=good_enough_cost, stall=stall)
     return problem, result
 
 
@@ -493,13 +500,23 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         # `convergence` of that cost (not of the task's range: a chain of replans would creep
         # away from a zero optimum by that much each, obstacle 0.4 -> 8 mm in four); a fresh
         # plan, which decides the basin or that the task has converged, uses its whole budget.
-        good_enough = None
+        good_enough, stall = None, None
+        tolerance = settings.convergence * _scale(report.final_cost, report)
+        if settings.stall_s is not None and not math.isnan(report.start_cost):
+            # Every later plan also stops once it stalls: the obstacle task's replans spent
+            # their whole 8 s chasing tenths of a millimetre (51 of 74 s wall planning, session
+            # 8), and fresh plans late in a clean task found their best within 2-3 s of 8.
+            stall = StallRule(settings.stall_s, tolerance)
         if replaced is not None:
             promised = float(np.min(replaced[0].costs))
             good_enough = promised + settings.convergence * abs(promised)
+            if stall is not None:
+                # ... a replan only once it is near what it replaces promised: stalled at
+                # -1.51 against -2.00 promised, a tset6 replan settled for the worse basin
+                stall = dataclasses.replace(stall, ceiling=promised + tolerance)
         problem, result = plan_from(scenario, observed, store, reachability, settings,
                                     lower_bound_cost, target, cancelled, replaced=replaced,
-                                    good_enough_cost=good_enough)
+                                    good_enough_cost=good_enough, stall=stall)
         replaced = None
         report.planning_s += result.elapsed_s
         on_plan(result)
@@ -509,7 +526,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         report.final_cost = current
         if not report.costs:
             report.costs.append(current)
-        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings)
+        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings,
+                                      execution_noise_cost(problem, result, store))
         # what executing the chosen part of the plan predicts (not the unexecuted rest's best)
         report.predicted_cost = float(result.costs[steps])
         improvement = current - float(result.costs[steps])
@@ -578,20 +596,52 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 break
 
 
-def steps_worth_executing(costs: np.ndarray, settings: TaskSettings) -> int:
+def steps_worth_executing(costs: np.ndarray, settings: TaskSettings,
+                          noise_cost: float) -> int:
     """How many pushes of a plan with these costs (start first) to execute.
 
-    All, unless the plan is a detour for a polish: it climbs more than `detour_max_climb` times
-    what it finally gains (near an optimum TASK_SPACE_RRT may park an object to win a
-    millimetre; executed, its errors cost more than the polish is worth). Of such a plan, the
-    part before the climb. A detour of the gain's own size (objects moved aside to let another
-    through) is the point of planning, and is executed.
+    A plan that ends in a detour (from its best state before its highest one it climbs more
+    than `detour_max_climb` times what the detour then gains) is executed only up to the climb
+    when the detour gains less than `noise_cost`, what the errors of the plan's pushes are
+    expected to cost (`execution_noise_cost`): near an optimum TASK_SPACE_RRT may park an
+    object to win a millimetre, and executed, its errors cost more than the polish is worth.
+    Also when the part before the climb gains more than that by itself: a fresh plan from there
+    finds the detour again if it is still needed, and a long detour under execution noise
+    diverges and is replanned from its highest, worst states. Otherwise the whole plan: a
+    detour that gains more than its errors cost (objects moved aside to let another through,
+    the way round an obstacle, a way out of a bad arrangement) is the point of planning.
     """
-    current, best = float(costs[0]), float(costs.min())
-    climb, gain = float(costs.max()) - current, current - best
-    if climb > settings.detour_max_climb * gain:
-        return int(np.argmin(costs[:int(np.argmax(costs)) + 1]))
+    peak = int(np.argmax(costs))
+    before = int(np.argmin(costs[:peak + 1]))
+    climb, gain = float(costs[peak] - costs[before]), float(costs[before] - costs.min())
+    if climb > settings.detour_max_climb * gain and (
+            gain < noise_cost or float(costs[0] - costs[before]) > noise_cost):
+        return before
     return len(costs) - 1
+
+
+def execution_noise_cost(problem: PlanningProblem, plan: PlanResult, store: ModelStore,
+                         samples: int = 64) -> float:
+    """How far the cost at the plan's best state typically moves (mean absolute change) when
+    every object it pushes ends off its predicted pose by the noise its pushes accumulate there
+    (the model variances, added as PredictionTracker adds them): a gain smaller than this is
+    lost in the execution's errors. Sampled with a fixed seed, so a plan always gets the same
+    figure. (Not the mean rise: where the cost is concave, as the spread term is, noise lowers
+    it on average and a rise would call every detour worth its errors.)"""
+    best = int(np.argmin(plan.costs))
+    tracker = PredictionTracker(problem.scenario.objects)
+    for step in plan.steps[:best]:
+        spec = problem.scenario.object(step.object_id)
+        model = store.model_for(step.object_id, spec.object_class, step.primitive)
+        if model is not None:
+            tracker.pushed(step.object_id, model, step.push_length)
+    deviation = np.array([[math.sqrt(tracker.position_variance.get(object_id, 0.0))] * 2
+                          + [math.sqrt(tracker.angle_variance.get(object_id, 0.0))]
+                          for object_id in problem.objects.ids])
+    noise = np.random.default_rng(0).standard_normal((samples, *deviation.shape)) * deviation
+    state = plan.states[best]
+    noisy = problem.objective.cost(state[None] + noise)
+    return float(np.mean(np.abs(noisy - float(problem.objective.cost(state)))))
 
 
 def _negligible(improvement: float, cost: float, report: TaskReport,
@@ -599,10 +649,15 @@ def _negligible(improvement: float, cost: float, report: TaskReport,
     """Whether a predicted improvement is below `convergence` of the larger of the cost and
     the task's range (start cost to lower bound), so a zero optimum is not chased to the last
     micrometre."""
+    return improvement <= settings.convergence * _scale(cost, report)
+
+
+def _scale(cost: float, report: TaskReport) -> float:
+    """The larger of |cost| and the task's range (start cost to lower bound)."""
     scale = max(abs(cost), 1e-9)
     if math.isfinite(report.lower_bound) and math.isfinite(report.start_cost):
         scale = max(scale, report.start_cost - report.lower_bound)
-    return improvement <= settings.convergence * scale
+    return scale
 
 
 def _state_of(problem: PlanningProblem, poses: Mapping[str, Pose2D]) -> np.ndarray:

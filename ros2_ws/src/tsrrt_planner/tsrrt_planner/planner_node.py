@@ -234,6 +234,9 @@ class PlannerNode(Node):
         declare("planner", "tsrrt", ParameterDescriptor(
             description=f"default planner: one of {list(MODES)}"))
         declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
+        declare("stall_s", 2.0, _float(0.0, 600.0,
+                "RunTask: a plan after the first stops when its best improves by less than "
+                "convergence in this long, s (0: off)"))
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
@@ -550,6 +553,7 @@ class PlannerNode(Node):
             max_pushes=max_pushes or self._param("max_pushes"),
             time_budget_s=time_budget_s or self._param("time_budget_s"),
             convergence=self._param("convergence"),
+            stall_s=self._param("stall_s") or None,
             seed=seed if seed >= 0 else self._param("planner_seed"),
             margin=self._param("planning_margin"))
 

@@ -25,6 +25,7 @@ budget or when cancelled, report progress, and return the best state found with 
 
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 import time
@@ -83,6 +84,17 @@ class ProgressInfo:
     elapsed_s: float
     nodes: int
     best_cost: float
+
+
+@dataclass(frozen=True)
+class StallRule:
+    """Stop a search whose best cost has improved by less than `tolerance` in the last
+    `window_s` seconds, once that best is at or below `ceiling` (a replan keeps searching until
+    it is near what the plan it replaces promised)."""
+
+    window_s: float
+    tolerance: float
+    ceiling: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -172,9 +184,11 @@ class _Search:
     def __init__(self, problem: PlanningProblem, mode: str, seed: int, config: PlannerConfig,
                  time_budget_s: float | None, max_nodes: int | None, progress: Progress | None,
                  cancel: Cancel | None, orientation_weights: np.ndarray,
-                 good_enough_cost: float | None = None) -> None:
+                 good_enough_cost: float | None = None,
+                 stall: StallRule | None = None) -> None:
         self.problem, self.mode, self.seed, self.config = problem, mode, seed, config
         self.good_enough_cost = good_enough_cost
+        self.stall = stall
         self.rng = np.random.default_rng(seed)
         self.time_budget_s, self.max_nodes = time_budget_s, max_nodes
         self.progress = progress
@@ -199,8 +213,17 @@ class _Search:
             raise _Stop("nodes")
         if self.time_budget_s is not None and self.elapsed() >= self.time_budget_s:
             raise _Stop("time")
+        if self.stall is not None and self.stalled(self.stall):
+            raise _Stop("stalled")
         if self.progress is not None and self.checks % 50 == 0:
             self.progress(ProgressInfo(self.elapsed(), self.tree.size, self.best_cost))
+
+    def stalled(self, rule: StallRule) -> bool:
+        now = self.elapsed()
+        if now < rule.window_s or self.best_cost > rule.ceiling:
+            return False
+        then = bisect.bisect_right(self.trace, now - rule.window_s, key=lambda entry: entry[0])
+        return self.trace[max(then - 1, 0)][2] - self.best_cost < rule.tolerance
 
     def add_node(self, parent: int, state: np.ndarray, action: tuple[int, int, float]) -> int:
         self.check_budget()
@@ -853,7 +876,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
                    target: np.ndarray | None = None,
                    warm_start: Sequence[PlanStep] = (),
                    previous_goal: np.ndarray | None = None,
-                   good_enough_cost: float | None = None) -> PlanResult:
+                   good_enough_cost: float | None = None,
+                   stall: StallRule | None = None) -> PlanResult:
     """Plan pushes that lower the objective; returns the best plan found (anytime).
 
     Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
@@ -877,6 +901,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
             REARRANGE steers there first.
         good_enough_cost: stop as soon as a state this good is found (a replan that has
             recovered what the plan it replaces promised).
+        stall: stop once the search stalls (StallRule; stop reason "stalled"). Time-based,
+            so not repeatable by seed.
     """
     if mode not in MODES:
         raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
@@ -889,6 +915,9 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     config = config or PlannerConfig()
     if not 0.0 <= config.epsilon <= 1.0:
         raise PlannerError(f"epsilon must be within [0, 1], got {config.epsilon}")
+    if stall is not None and not (stall.window_s > 0 and stall.tolerance >= 0):
+        raise PlannerError(f"a stall rule needs a window > 0 s and a tolerance >= 0, got "
+                           f"{stall}")
     for name, state in (("target", target), ("previous_goal", previous_goal)):
         if state is not None and np.shape(state) != problem.start.shape:
             raise PlannerError(f"{name} must have shape {problem.start.shape}, got "
@@ -904,7 +933,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     warm_pushes = [(index[step.object_id], step.primitive, step.push_length)
                    for step in warm_start]
     arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
-                 weights, good_enough_cost)
+                 weights, good_enough_cost, stall)
     search: _Search
     if mode == "greedy":
         search = _GreedySearch(*arguments)
