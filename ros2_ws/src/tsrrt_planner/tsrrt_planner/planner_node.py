@@ -235,8 +235,9 @@ class PlannerNode(Node):
             description=f"default planner: one of {list(MODES)}"))
         declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
         declare("stall_s", 2.0, _float(0.0, 600.0,
-                "RunTask: a plan after the first stops when its best improves by less than "
-                "convergence in this long, s (0: off)"))
+                "RunTask: a plan after the first stops when, near what the plan it replaces "
+                "promised (or the lower bound), its best improves by less than convergence in "
+                "this long, s (0: off)"))
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
