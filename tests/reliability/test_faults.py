@@ -110,17 +110,22 @@ def test_cancel_mid_push_stops_the_arm_in_the_observe_posture(graph: TaskGraph, 
     phases = graph.probe.record(ExecutePrimitive.Impl.FeedbackMessage,
                                 "/executor/execute_primitive/_action/feedback",
                                 transform=lambda m: m.feedback.phase)
-    handle = graph.send_task()
+    feedback: list = []
+    handle = graph.send_task(feedback=feedback)
     cancelled: list = []
 
     def cancel_once_pushing() -> None:
-        if Feedback.PHASE_PUSH in phases and not cancelled:
+        # in a push after the first, so the result has pushes to report
+        if executed_pushes(feedback) >= 1 and phases[-1:] == [Feedback.PHASE_PUSH] and (
+                not cancelled):
             cancelled.append(handle.cancel_goal_async())
 
     status, result = graph.wait_result(handle, during=cancel_once_pushing)
     assert cancelled, "no push was seen"
     assert status == GoalStatus.STATUS_CANCELED, describe(result)
     assert result.error_code == RunTask.Result.CANCELED, describe(result)
+    # what was done before the cancel is reported, not lost with the cancelled push
+    assert result.pushes >= 1 and result.final_objects, describe(result)
     # The executor retreats before it answers the cancel, and the planner waits for that.
     error = np.abs(graph.joint_positions() - np.array(OBSERVE_POSTURE)).max()
     figures["joint_error_after_cancel_rad"] = round(float(error), 4)

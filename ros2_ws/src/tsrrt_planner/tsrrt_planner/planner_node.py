@@ -631,7 +631,11 @@ class PlannerNode(Node):
             self._check_start(environment.observe(), "PLANNING_FAILED")
             bound = self._bound()
 
+            reports: list[TaskReport] = []   # the task's, kept for a result on failure
+
             def on_event(phase: str, report: TaskReport) -> None:
+                if not reports:
+                    reports.append(report)
                 if phase == "replanning" and report.divergences:
                     why = report.divergences[-1]
                     self.get_logger().info(
@@ -643,15 +647,16 @@ class PlannerNode(Node):
                     current_cost=report.final_cost,
                     best_predicted_cost=report.predicted_cost, replans=report.replans))
 
-            report = run_task(self.scenario, self.store, environment, self.reachability,
-                              settings, bound.cost, bound.state, on_event, cancelled,
-                              on_model_update=self._save_models, on_plan=self._log_plan)
-            result.final_cost, result.predicted_cost = report.final_cost, report.predicted_cost
-            result.lower_bound, result.pushes = bound.cost, report.pushes
-            result.replans, result.planning_s = report.replans, report.planning_s
-            last = report.visited[-1]
-            result.final_objects = [_object_state(spec, last[spec.id])
-                                    for spec in self.scenario.objects]
+            try:
+                report = run_task(self.scenario, self.store, environment, self.reachability,
+                                  settings, bound.cost, bound.state, on_event, cancelled,
+                                  on_model_update=self._save_models, on_plan=self._log_plan)
+            except BaseException:
+                # a push failed or was cancelled: report what was done up to there
+                if reports:
+                    self._fill_result(result, reports[0], bound.cost)
+                raise
+            self._fill_result(result, report, bound.cost)
             if report.stop_reason == "cancelled":
                 raise GoalFailed("CANCELED", "cancelled")
             if report.stop_reason != "converged":
@@ -662,6 +667,16 @@ class PlannerNode(Node):
                                     "reach, left where they stand")
 
         return self._run_exclusive(goal_handle, result, work)
+
+    def _fill_result(self, result: RunTask.Result, report: TaskReport,
+                     lower_bound: float) -> None:
+        """A RunTask result's figures and final poses from the task's report."""
+        result.final_cost, result.predicted_cost = report.final_cost, report.predicted_cost
+        result.lower_bound, result.pushes = lower_bound, report.pushes
+        result.replans, result.planning_s = report.replans, report.planning_s
+        last = report.visited[-1]
+        result.final_objects = [_object_state(spec, last[spec.id])
+                                for spec in self.scenario.objects]
 
     # ------------------------------------------------------------------ plan output
     def _log_plan(self, plan: PlanResult) -> None:
