@@ -374,21 +374,22 @@ class _Search:
                 steps = steps[:k] + replacement
                 break
         steps = merge_runs(problem, shorten_runs(problem, steps, self.weights, allowed))
-        final_cost = float(problem.objective.cost(simulate(problem, steps)[-1]))
-        return merge_runs(problem, self.shortcut_pairs(
-            steps, final_cost + PAIR_COST_TOLERANCE * max(abs(final_cost), 1e-12)))
+        return merge_runs(problem, self.shortcut_pairs(steps))
 
-    def shortcut_pairs(self, steps: list[Push], allowed: float) -> list[Push]:
+    def shortcut_pairs(self, steps: list[Push]) -> list[Push]:
         """Random shortcutting, as for RRT paths: pick two states i < j of the plan and steer
         each object the pushes between them move straight to its pose at j (closed form, at
         most PAIR_PUSHES_PER_OBJECT pushes each, in the order they first move or its reverse);
         keep it when that takes fewer pushes and the rest of the plan still replays validly
-        to a cost <= `allowed`. A tree path zigzags through the detours of every extension it
-        was grown by (tset6, 10 s: 80 -> 63 and 107 -> 69 pushes). PAIR_ATTEMPTS_PER_PUSH
-        attempts per push, until the time budget ends or the caller cancels."""
+        to within PAIR_COST_TOLERANCE of the plan's end cost. A tree path zigzags through the
+        detours of every extension it was grown by (tset6, 10 s: 80 -> 63 and 107 -> 69
+        pushes). PAIR_ATTEMPTS_PER_PUSH attempts per push, until the time budget ends or the
+        caller cancels."""
         problem = self.problem
         rng = np.random.default_rng(self.seed)
         states = list(simulate(problem, steps))
+        final_cost = float(problem.objective.cost(states[-1]))
+        allowed = final_cost + PAIR_COST_TOLERANCE * max(abs(final_cost), 1e-12)
         for _ in range(PAIR_ATTEMPTS_PER_PUSH * len(steps)):
             if len(steps) < 3 or (self.cancelled is not None and self.cancelled()) or (
                     self.deadline_s is not None and self.elapsed() >= self.deadline_s):
