@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import replace
 
@@ -10,7 +11,7 @@ import pytest
 
 from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.errors import PlannerError
-from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap
+from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap, swap_refine
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
@@ -166,6 +167,25 @@ def test_lower_bound_is_feasible_and_below_start(problem, bound):
     assert bound.cost <= problem.objective.cost(problem.start)
     state, cost, feasible = local_minimum(problem, problem.start)
     assert feasible and cost <= problem.objective.cost(problem.start) + 1e-12
+
+
+def test_swapping_neighbours_finds_the_better_order_of_a_cluster():
+    """clean's objective gathers three boxes side by side; descending from the eraser between
+    the scale and the remote ends in a local minimum the remote in the middle beats."""
+    scenario = load_scenario("clean")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    ids = problem.objects.ids
+    scale, remote, eraser = (ids.index(name) for name in ("scale", "remote", "eraser"))
+    eraser_between = problem.start.copy()
+    eraser_between[[scale, remote, eraser]] = [[0.45, -0.09, 0.0], [0.45, 0.053, 0.0],
+                                               [0.45, 0.0, 0.0]]
+    state, cost, feasible = local_minimum(problem, eraser_between, max_iterations=150)
+    assert feasible and state[scale, 1] < state[eraser, 1] < state[remote, 1]
+    refined, refined_cost, descents = swap_refine(problem, state, cost, deadline=math.inf)
+    assert descents >= 1 and refined_cost < cost - 1e-3
+    assert problem.checker.constraint_values(refined).min() > -1e-5
+    middle = np.argsort(refined[:, 1])[1]
+    assert middle == remote
 
 
 @pytest.mark.parametrize("cost, bound, gap", [

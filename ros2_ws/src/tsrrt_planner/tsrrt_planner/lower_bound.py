@@ -7,8 +7,14 @@ table and apart by the same margin. Pushing, reachability and the ball path are 
 plan can end in a state it does not allow.
 
 It is a *bound* only as good as the multi-start search: the objective is non-convex, so the
-value is the best local minimum found. Gap = (C - C_lb) / |C_lb|; a negative gap would mean the
-planner found a better minimum than the multi-start did (reported as is, never hidden).
+value is the best local minimum found. Random starts rarely find the order of a tight cluster:
+on clean, 12-16 starts put the eraser between the scale and the remote (0.0855) where the remote
+in the middle is 1.8 % better (found by 32 starts, 2.2 s). So the best minimum is refined by
+swapping: the positions of two neighbouring objects of different kinds are exchanged and the
+result descended again, repeated while it improves (`swap_refine`).
+
+Gap = (C - C_lb) / |C_lb|; a negative gap would mean the planner found a better minimum than
+the multi-start did (reported as is, never hidden).
 
 `local_minimum` is also the planners' DIRECTGD: gradient-based descent from a tree node to the
 nearest constrained local minimum.
@@ -28,6 +34,8 @@ from tsrrt_planner.problem import PlanningProblem
 
 FEASIBILITY_TOLERANCE = 1e-5  # metres; SLSQP stops a hair outside active constraints
 ZERO_OPTIMUM = 1e-6  # |lower bound| at or below which a relative gap means nothing
+SWAP_GAIN = 1e-6  # relative improvement that makes swap_refine keep an exchange
+NEIGHBOUR_GAP = 0.02  # metres between bounding circles within which swap_refine swaps objects
 
 
 def relative_gap(cost: float, bound: float | None) -> float | None:
@@ -103,5 +111,40 @@ def lower_bound(problem: PlanningProblem, starts: int = 16, seed: int = 0,
                 best_state, best_cost = found, cost
     if best_state is None:
         best_state, best_cost = problem.start, float(problem.objective.cost(problem.start))
+    else:
+        best_state, best_cost, swaps = swap_refine(problem, best_state, best_cost,
+                                                   began + time_limit_s)
+        tried += swaps
     return LowerBound(best_cost, best_state, tried, feasible_count,
                       time.perf_counter() - began)
+
+
+def swap_refine(problem: PlanningProblem, state: np.ndarray, cost: float, deadline: float
+                ) -> tuple[np.ndarray, float, int]:
+    """Exchange the positions of two neighbouring objects of different kinds (headings stay)
+    and descend again; keep the first exchange that is feasible and better, until none is (or
+    the perf_counter `deadline` passes). Neighbours only: their order is what multi-starts
+    get wrong, and a tset6 plate in a corner never gains from a platter's place (8 descents,
+    2.5 s). Returns the state, its cost and the descents made."""
+    kinds = [(spec.object_class, spec.shape, spec.length, spec.width)
+             for spec in problem.scenario.objects]
+    objects = problem.objects
+    reach = np.hypot(objects.half_length, np.where(objects.is_disc, 0.0, objects.half_width))
+    descents, improved = 0, True
+    while improved and time.perf_counter() < deadline:
+        improved = False
+        apart = np.linalg.norm(state[:, None, :2] - state[None, :, :2], axis=-1)
+        pairs = [(i, j) for i in range(problem.n) for j in range(i + 1, problem.n)
+                 if kinds[i] != kinds[j]
+                 and apart[i, j] <= reach[i] + reach[j] + NEIGHBOUR_GAP]
+        for i, j in pairs:
+            if time.perf_counter() >= deadline:
+                break
+            swapped = state.copy()
+            swapped[[i, j], :2] = state[[j, i], :2]
+            found, found_cost, feasible = local_minimum(problem, swapped, max_iterations=150)
+            descents += 1
+            if feasible and found_cost < cost - SWAP_GAIN * max(abs(cost), ZERO_OPTIMUM):
+                state, cost, improved = found, found_cost, True
+                break
+    return state, cost, descents
