@@ -166,6 +166,24 @@ def test_corridor_blocks_orders_an_object_out_of_anothers_way():
     assert not corridor_blocks(problem, state, target, [0, 2])[0, 1]
 
 
+def test_corridors_turn_on_the_way():
+    """clean (seed 2 of the benchmark, mid-REARRANGE): the eraser turning into its slot beside
+    the remote's target does not cross it; swept at its current heading (0.97 rad off) it
+    would, and the remote, the scale and the eraser all waited for each other."""
+    scenario = load_scenario("clean")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    scale, remote, eraser = (problem.objects.ids.index(name)
+                             for name in ("scale", "remote", "eraser"))
+    state, target = np.zeros((3, 3)), np.zeros((3, 3))
+    state[[scale, remote, eraser]] = [[0.49, -0.178, 1.448], [0.563, 0.081, 1.45],
+                                      [0.349, 0.129, 0.965]]
+    target[[scale, remote, eraser]] = [[0.45, -0.088, 0.0], [0.45, 0.0, 0.0],
+                                       [0.45, 0.053, np.pi]]
+    blocks = corridor_blocks(problem, state, target, [0, 1, 2])
+    assert not blocks[remote, eraser]
+    assert blocks[eraser, remote] and blocks[scale, remote]   # the remote must turn past both
+
+
 def test_targets_on_an_edge_are_aimed_at_from_inside(problem):
     bound = lower_bound(problem, starts=2)
     inset = inset_from_edges(problem, bound.state, 0.002)

@@ -181,10 +181,12 @@ def target_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
 def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                     pending: list[int], samples: int = 8) -> np.ndarray:
     """(n, n) True at [i, j] when object i placed at its target would stand in the corridor
-    object j (pending, j != i) sweeps going straight from its pose in `state` to its target
-    at its current heading (start included: j standing on i's target is such a conflict).
+    object j (pending, j != i) sweeps going straight from its pose in `state` to its target,
+    turning evenly on the way (start included: j standing on i's target is such a conflict).
     Placing i first would then wall j in, so j should go first; in a cycle one of them has
-    to be parked."""
+    to be parked. Swept at its current heading instead, a long box that must turn a quarter
+    to lie in a row would arrive across its neighbours' targets: clean's remote and the boxes
+    beside it blocked each other, and the boxes were placed around the remote's slot."""
     n = problem.n
     blocks = np.zeros((n, n), bool)
     pairs = [(i, j) for i in pending for j in pending if i != j]
@@ -193,9 +195,12 @@ def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndar
     rows_i, rows_j = (np.array(side) for side in zip(*pairs, strict=True))
     fractions = np.linspace(0.0, 1.0, samples)
     k = len(pairs)
-    sweep = np.repeat(state[rows_j], samples, 0)  # (k * samples, 3), heading kept
-    sweep[:, :2] += (np.tile(fractions, k)[:, None]
-                     * np.repeat(target[rows_j, :2] - state[rows_j, :2], samples, 0))
+    sweep = np.repeat(state[rows_j], samples, 0)  # (k * samples, 3)
+    change = target[rows_j] - state[rows_j]
+    period = problem.angle_period[rows_j]   # the shortest turn (none for a disc)
+    turn = (change[:, 2] + period / 2) % np.where(period > 0, period, 1.0) - period / 2
+    change[:, 2] = np.where(period > 0, turn, 0.0)
+    sweep += np.tile(fractions, k)[:, None] * np.repeat(change, samples, 0)
     clear = footprints_clear(problem, np.repeat(rows_i, samples), np.repeat(target[rows_i],
                                                                             samples, 0),
                              np.repeat(rows_j, samples), sweep)
