@@ -112,9 +112,8 @@ def lower_bound(problem: PlanningProblem, starts: int = 16, seed: int = 0,
     if best_state is None:
         best_state, best_cost = problem.start, float(problem.objective.cost(problem.start))
     else:
-        best_state, best_cost, swaps = swap_refine(problem, best_state, best_cost,
-                                                   began + time_limit_s)
-        tried += swaps
+        best_state, best_cost, _ = swap_refine(problem, best_state, best_cost,
+                                               began + time_limit_s)
     return LowerBound(best_cost, best_state, tried, feasible_count,
                       time.perf_counter() - began)
 

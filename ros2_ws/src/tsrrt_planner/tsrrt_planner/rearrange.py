@@ -197,9 +197,9 @@ def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndar
     k = len(pairs)
     sweep = np.repeat(state[rows_j], samples, 0)  # (k * samples, 3)
     change = target[rows_j] - state[rows_j]
-    period = problem.angle_period[rows_j]   # the shortest turn (none for a disc)
-    turn = (change[:, 2] + period / 2) % np.where(period > 0, period, 1.0) - period / 2
-    change[:, 2] = np.where(period > 0, turn, 0.0)
+    turns = np.zeros((k, n))   # angle_error takes every object's heading difference
+    turns[np.arange(k), rows_j] = change[:, 2]
+    change[:, 2] = problem.angle_error(turns)[np.arange(k), rows_j]   # the shortest turn
     sweep += np.tile(fractions, k)[:, None] * np.repeat(change, samples, 0)
     clear = footprints_clear(problem, np.repeat(rows_i, samples), np.repeat(target[rows_i],
                                                                             samples, 0),
