@@ -187,13 +187,17 @@ def test_new_goal_preempts_the_running_one(probe):
 
 
 def test_bad_goal_leaves_the_running_one_alone(probe):
-    # Slow enough (60 s simulated) to still be running when the refusal comes back.
-    running = probe.send_goal(goal_to([shifted(0.3), READY_POSTURE], [30.0, 60.0]))
+    # Long in sim time (600 s), so that it is still running when the refusal comes back even on
+    # a loaded machine (60 s simulated, about 1.5 s at full sim speed, once was not); it is
+    # cancelled afterwards, which only a goal the refusal left running can be.
+    running = probe.send_goal(goal_to([shifted(0.3)], [600.0]))
     running_result = running.get_result_async()
     refused = probe.execute(goal_to([shifted(math.nan)], [1.0])).result
     assert refused.error_code == Result.INVALID_GOAL
     assert not running_result.done()
-    assert probe.wait_for(running_result).result.error_code == Result.SUCCESSFUL
+    assert len(probe.wait_for(running.cancel_goal_async()).goals_canceling) == 1
+    assert probe.wait_for(running_result).result.error_code == Result.CANCELED
+    probe.execute(goal_to([READY_POSTURE], [2.0]))
 
 
 def test_cancel_is_accepted(probe):
