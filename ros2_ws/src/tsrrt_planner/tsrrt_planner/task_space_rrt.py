@@ -401,15 +401,9 @@ class _Search:
                 order.reverse()
             state, replacement = states[i], []
             for o in order:
-                for _ in range(PAIR_PUSHES_PER_OBJECT):
-                    if object_error(problem, o, state[o][None], states[j][o],
-                                    self.weights[o])[0] < PAIR_TOLERANCE:
-                        break
-                    push = steer_push(problem, state, states[j], self.weights, o)
-                    if push is None:
-                        break
-                    replacement.append(push)
-                    state = problem.apply(state, *push)
+                pushes, state = steer_object(problem, state, states[j], self.weights, o,
+                                             PAIR_PUSHES_PER_OBJECT, PAIR_TOLERANCE)
+                replacement += pushes
             if len(replacement) >= j - i:
                 continue
             replayed = replay_from(problem, states[i], replacement + steps[j:])
@@ -433,15 +427,9 @@ def shorten_runs(problem: PlanningProblem, steps: list[Push], weights: np.ndarra
             end += 1
         if end - k >= 3:
             o = steps[k][0]
-            state, replacement = states[k], []
             goal = states[k].copy()
             goal[o] = states[end][o]
-            while len(replacement) < end - k - 1:
-                push = steer_push(problem, state, goal, weights, o)
-                if push is None:
-                    break
-                replacement.append(push)
-                state = problem.apply(state, *push)
+            replacement, _ = steer_object(problem, states[k], goal, weights, o, end - k - 1)
             if replacement and len(replacement) < end - k:
                 replayed = replay_from(problem, states[k], replacement + steps[end:])
                 if replayed is not None and float(problem.objective.cost(replayed[-1])) <= (
@@ -782,6 +770,25 @@ def _first_valid(problem: PlanningProblem, state: np.ndarray, objects: np.ndarra
             if valid.any():
                 return int(part[int(np.argmax(valid))])
     return None
+
+
+def steer_object(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                 weights: np.ndarray, index: int, max_pushes: int,
+                 tolerance: float | None = None) -> tuple[list[Push], np.ndarray]:
+    """Up to `max_pushes` steer_push pushes of object `index` alone towards its pose in
+    `target`, until none helps (or it is within `tolerance` under object_error); returns the
+    pushes and the state they lead to. Shortcuts replace stretches of a plan with these."""
+    pushes: list[Push] = []
+    while len(pushes) < max_pushes:
+        if tolerance is not None and object_error(problem, index, state[index][None],
+                                                  target[index], weights[index])[0] < tolerance:
+            break
+        push = steer_push(problem, state, target, weights, index)
+        if push is None:
+            break
+        pushes.append(push)
+        state = problem.apply(state, *push)
+    return pushes, state
 
 
 def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
