@@ -4,9 +4,10 @@ Contents: a table (a box whose top is at the scenario's table height), the scena
 (dynamic boxes and cylinders with their mass and friction) and obstacles (fixed), and the Panda
 with the ball pusher, torque-controlled by a TrajectoryController at every physics step.
 
-Friction: PyBullet multiplies the coefficients of the two bodies in contact, so an object slides
-on the table with mu = object.friction * table.friction, and is pushed by the ball with
-mu = object.friction * PUSHER_FRICTION.
+Friction: an object slides on the table with mu = object.friction * table.friction, isotropic
+Coulomb friction the sim applies itself (table_friction: PyBullet's depends on the heading); the
+ball pushes it with PyBullet's friction, mu = object.friction * PUSHER_FRICTION (PyBullet
+multiplies the coefficients of the two bodies in contact).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from tsrrt_common.robot_model import (
 )
 from tsrrt_common.scenario import ObjectSpec, Scenario
 from tsrrt_sim.kinematics import PusherKinematics
+from tsrrt_sim.table_friction import RESTING_TOLERANCE, SlidingBody, footprint_cells
 from tsrrt_sim.trajectory_controller import ControllerGains, Tolerances, TrajectoryController
 
 DEFAULT_PHYSICS_HZ = 240.0
@@ -39,11 +41,6 @@ TABLE_THICKNESS = 0.04
 # Objects start this far above the table so that the first contact is not a deep penetration.
 SPAWN_CLEARANCE = 5e-4
 PUSHER_FRICTION = 0.5
-# Flat-bottomed objects get their resistance to sliding and turning from lateral friction at the
-# several points of the contact manifold; a little rolling and spinning friction only damps the
-# solver's jitter, so that a cylinder standing on its face slides instead of wobbling or turning.
-ROLLING_FRICTION = 1e-4
-SPINNING_FRICTION = 1e-3
 TABLE_COLOR = (0.55, 0.45, 0.35, 1.0)
 ARM_COLOR = (0.92, 0.92, 0.92, 1.0)
 DEFAULT_CAMERA = OverheadCamera()
@@ -294,9 +291,17 @@ class SimWorld:
         self._table = self._create_table(scenario)
         self._bodies: dict[str, int] = {}
         self._specs: dict[str, ObjectSpec] = {}
+        self._sliding: dict[int, SlidingBody] = {}
         for spec in (*scenario.obstacles, *scenario.objects):
             self._bodies[spec.id] = self._create_object(spec, scenario.table.height)
             self._specs[spec.id] = spec
+            if not spec.static:
+                self._sliding[self._bodies[spec.id]] = SlidingBody(
+                    mass=spec.mass,
+                    inertia_z=client.getDynamicsInfo(self._bodies[spec.id], -1)[2][2],
+                    mu=spec.friction * scenario.table.friction, half_height=spec.height / 2.0,
+                    rest_z=scenario.table.height + spec.height / 2.0,
+                    cells=footprint_cells(spec.shape, spec.length, spec.width))
         self.controller.reset(np.array(self.initial_posture))
         self._last_torques = np.zeros(len(ARM_JOINT_NAMES))
 
@@ -337,7 +342,8 @@ class SimWorld:
                                                           halfExtents=half_extents,
                                                           rgbaColor=TABLE_COLOR),
             basePosition=(table.center[0], table.center[1], table.height - TABLE_THICKNESS / 2.0))
-        client.changeDynamics(body, -1, lateralFriction=table.friction)
+        # Its friction is applied by _apply_table_friction, not by PyBullet.
+        client.changeDynamics(body, -1, lateralFriction=0.0)
         return body
 
     def _create_object(self, spec: ObjectSpec, table_height: float) -> int:
@@ -361,8 +367,6 @@ class SimWorld:
             baseVisualShapeIndex=visual, basePosition=(spec.pose.x, spec.pose.y, z),
             baseOrientation=_yaw_quaternion(spec.pose.theta))
         client.changeDynamics(body, -1, lateralFriction=spec.friction,
-                              rollingFriction=ROLLING_FRICTION,
-                              spinningFriction=SPINNING_FRICTION,
                               linearDamping=0.0, angularDamping=0.0, restitution=0.0)
         if not spec.static:
             # Left awake, a resting box creeps by tens of micrometres and ~0.1 mrad per second
@@ -389,10 +393,28 @@ class SimWorld:
             torques = self.controller.update(self.sim_time, positions, velocities)
             client.setJointMotorControlArray(self._robot, self._joint_indices,
                                              pybullet.TORQUE_CONTROL, forces=torques.tolist())
+            self._apply_table_friction()
             client.stepSimulation()
             self._last_torques = torques
             self._step_count += 1
             self.sim_time = self._step_count * self.time_step
+
+    def _apply_table_friction(self) -> None:
+        """Friction of every object sliding on the table for the coming step (table_friction)."""
+        client = self._client
+        for body, sliding in self._sliding.items():
+            linear, angular = client.getBaseVelocity(body)
+            if linear[0] == 0.0 and linear[1] == 0.0 and angular[2] == 0.0:
+                continue                      # at rest (or asleep): no friction to apply
+            position, orientation = client.getBasePositionAndOrientation(body)
+            if position[2] > sliding.rest_z + RESTING_TOLERANCE:
+                continue                      # lifted off the table
+            force, torque = sliding.wrench(yaw_of_quaternion(orientation),
+                                           np.array(linear[:2]), angular[2], self.time_step)
+            bottom = (position[0], position[1], position[2] - sliding.half_height)
+            client.applyExternalForce(body, -1, (force[0], force[1], 0.0), bottom,
+                                      pybullet.WORLD_FRAME)
+            client.applyExternalTorque(body, -1, (0.0, 0.0, torque), pybullet.WORLD_FRAME)
 
     def settle(self, seconds: float) -> None:
         """Let the world run for `seconds` of simulated time (objects come to rest)."""
