@@ -247,6 +247,18 @@ def test_executed_push_updates_model_with_eq9_at_nominal_length() -> None:
     np.testing.assert_allclose(model.variance, all_deltas.var(axis=0), atol=1e-12)
 
 
+def test_push_planned_with_a_mirrored_model_starts_the_objects_own() -> None:
+    store = ModelStore([ForwardModel("eraser", 1, 0.05, 4, np.array([0.05, 0.0, 0.01]),
+                                     np.full(3, 1e-6))], {"eraser": "eraser"})
+    before = Pose2D(0.4, 0.0, 0.3)
+    observed = np.array([-0.048, 0.001, -0.012])
+    update_model_with_push(store, "eraser", "eraser", 2, 0.05,
+                           PushOutcome(before, before.apply_displacement(observed)))
+    own = store.get("eraser", 2)
+    assert own.count == 1
+    np.testing.assert_allclose(own.mean, observed, atol=1e-12)
+
+
 def test_divergence_uses_accumulated_uncertainty_and_flags_unpushed_motion() -> None:
     scenario = load_scenario("clean")
     statistics = DisplacementStats()

@@ -18,6 +18,7 @@ from tsrrt_planner.model_learning import (
     ForwardModel,
     ModelStore,
     PaperStoppingRule,
+    mirrored,
 )
 from tsrrt_planner.push_rule import SimulatedPusher, learn_all, plausible_displacement
 
@@ -191,6 +192,45 @@ def test_a_primitive_without_a_model_is_unavailable_not_an_error(store):
     assert available.tolist() == [[True, True, False, True, False, False],
                                   [True, True, True, True, False, False]]
     assert not rates[0, 2].any()
+
+
+def eraser_model(primitive, mean, count=3):
+    return ForwardModel("eraser", primitive, 0.05, count, np.array(mean), np.full(3, 1e-6))
+
+
+@pytest.mark.parametrize(("primitive", "partner", "partner_mean", "mean"), [
+    (2, 1, [0.049, 0.002, -0.01], [-0.049, 0.002, 0.01]),       # across the object's y axis
+    (4, 3, [-0.001, 0.049, -0.008], [-0.001, -0.049, 0.008]),   # across its x axis
+    (6, 5, [-0.006, 0.018, 0.57], [-0.006, -0.018, -0.57]),     # the same end, other side
+])
+def test_a_primitive_never_tried_plans_with_the_mirror_image_of_its_partner(
+        primitive, partner, partner_mean, mean):
+    # The sim's eraser: p5 (-5.8 mm, 18.2 mm, 0.572 rad), p6 (-6.1 mm, -17.7 mm, -0.550 rad).
+    store = ModelStore([eraser_model(partner, partner_mean)], {"eraser": "eraser"})
+    model = store.model_for("eraser", "eraser", primitive)
+    assert model.primitive == primitive and model.count == 3
+    np.testing.assert_allclose(model.mean, mean)
+    np.testing.assert_allclose(model.variance, store.get("eraser", partner).variance)
+    assert ("eraser", primitive) not in store.models          # never written to the file
+
+
+def test_only_a_partner_is_mirrored():
+    with pytest.raises(ModelError, match="primitive 2 mirrors primitive 1, not 3"):
+        mirrored(eraser_model(3, [0.0, 0.05, 0.0]), 2)
+
+
+def test_own_trials_and_class_mates_come_before_a_mirror_image():
+    store = ModelStore([eraser_model(1, [0.05, 0.0, 0.0]), eraser_model(2, [-0.03, 0.0, 0.0])],
+                       {"eraser": "eraser"})
+    assert store.model_for("eraser", "eraser", 2).mean[0] == -0.03
+    store.add(eraser_model(4, [0.0, -0.04, 0.0]), "eraser")
+    store.add(ForwardModel("eraser_2", 3, 0.05, 5, np.array([0.0, 0.045, 0.0]), np.zeros(3)),
+              "eraser")
+    assert store.model_for("eraser", "eraser", 3).object_id == "eraser_2"
+    # A single trial of its own does not beat the mirror of two or more of the partner.
+    store.add(eraser_model(6, [0.0, -0.01, -0.3], count=1), "eraser")
+    store.add(eraser_model(5, [0.0, 0.02, 0.5], count=2), "eraser")
+    assert store.model_for("eraser", "eraser", 6).mean[2] == -0.5
 
 
 def test_a_primitive_never_tried_borrows_a_class_mates_model(store):

@@ -320,14 +320,14 @@ def update_model_with_push(store: ModelStore, object_class: str, object_id: str,
 
     The planner scales displacement linearly with push length, so a push of another length is
     brought to the model's nominal length before it is averaged in. A push planned with a
-    class-mate's model starts the object's own model.
+    class-mate's model or a mirrored one starts the object's own model.
     """
-    model = store.models.get((object_id, primitive)) or store.model_for(object_id, object_class,
-                                                                        primitive)
+    own = store.models.get((object_id, primitive))
+    model = own or store.model_for(object_id, object_class, primitive)
     if model is None:
         raise PlannerError(f"no model of {object_id!r} or its class for primitive {primitive}")
-    statistics = (DisplacementStats(model.count, model.mean.copy(), model.m2.copy())
-                  if model.object_id == object_id else DisplacementStats())
+    statistics = (DisplacementStats(own.count, own.mean.copy(), own.m2.copy())
+                  if own is not None else DisplacementStats())
     statistics.update(outcome.displacement * (model.push_length / push_length))
     store.add(ForwardModel.from_stats(object_id, primitive, model.push_length, statistics),
               object_class)

@@ -228,6 +228,28 @@ def LEARN_MODEL(object_id: str, primitives: Sequence[int], s_init: Pose2D,
     return models, s
 
 
+# Primitive -> (its mirror-image partner, the object axis it is mirrored across: 0 = x, 1 = y).
+# Fig. 5: 1 and 2 push the two ends towards each other (mirrored across the object's y axis),
+# 3 and 4 the two long faces, 5 and 6 the same end from either side (across its x axis).
+MIRROR_PARTNER = {1: (2, 1), 2: (1, 1), 3: (4, 0), 4: (3, 0), 5: (6, 0), 6: (5, 0)}
+
+
+def mirrored(model: ForwardModel, primitive: int) -> ForwardModel:
+    """`model` of the partner of `primitive` reflected into a model of `primitive`.
+
+    A push mirrored across an axis of a symmetric object moves it the mirrored way: across the
+    y axis (dx, dy, dtheta) becomes (-dx, dy, -dtheta), across the x axis (dx, -dy, -dtheta).
+    The spread is the same; the count stays the partner's trials (none are this primitive's).
+    """
+    partner, axis = MIRROR_PARTNER[primitive]
+    if model.primitive != partner:
+        raise ModelError(f"primitive {primitive} mirrors primitive {partner}, not "
+                         f"{model.primitive}")
+    flip = np.array([-1.0, 1.0, -1.0]) if axis == 1 else np.array([1.0, -1.0, -1.0])
+    return ForwardModel(model.object_id, primitive, model.push_length, model.count,
+                        model.mean * flip, model.m2.copy())
+
+
 class ModelStore:
     """Forward models of every (object, primitive), with the object classes they were learned for.
     """
@@ -259,17 +281,32 @@ class ModelStore:
 
     def model_for(self, object_id: str, object_class: str, primitive: int
                   ) -> ForwardModel | None:
-        """The model to plan with: the object's own once it has two trials, else that of the
-        class-mate with the most trials (objects of a class differ little in mass and friction;
-        a primitive the robot could not try on this object, blocked while learning, is still
-        worth planning with), else its own single trial, else None."""
+        """The model to plan with, the first of:
+
+        1. the object's own, once it has two trials;
+        2. that of the class-mate with the most trials (objects of a class differ little in
+           mass and friction);
+        3. the mirror image of the primitive's partner (MIRROR_PARTNER), the object's own or a
+           class-mate's, with two trials (the objects are symmetric, of uniform density);
+        4. the object's own single trial; else None.
+
+        2 and 3 are for primitives the robot could not try on this object, blocked while
+        learning: they are still worth planning with.
+        """
         own = self.models.get((object_id, primitive))
         if own is not None and own.count >= 2:
             return own
-        if self.classes.get(object_id, object_class) == object_class:
-            mate = self.borrowed(object_class, primitive)
-            if mate is not None and mate.count >= 2:
-                return mate
+        same_class = self.classes.get(object_id, object_class) == object_class
+        mate = self.borrowed(object_class, primitive) if same_class else None
+        if mate is not None and mate.count >= 2:
+            return mate
+        partner = MIRROR_PARTNER.get(primitive)
+        if partner is not None:
+            sources = [self.models.get((object_id, partner[0])),
+                       self.borrowed(object_class, partner[0]) if same_class else None]
+            for source in sources:
+                if source is not None and source.count >= 2:
+                    return mirrored(source, primitive)
         return own
 
     def check_covers(self, objects: Sequence[tuple[str, str, str]],
