@@ -20,7 +20,13 @@ from tsrrt_planner.model_learning import (
     PaperStoppingRule,
     mirrored,
 )
-from tsrrt_planner.push_rule import SimulatedPusher, learn_all, plausible_displacement
+from tsrrt_planner.push_rule import (
+    SimulatedPusher,
+    learn_all,
+    plausible_displacement,
+    plausible_spread,
+    rule_model,
+)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -231,6 +237,21 @@ def test_own_trials_and_class_mates_come_before_a_mirror_image():
     store.add(eraser_model(6, [0.0, -0.01, -0.3], count=1), "eraser")
     store.add(eraser_model(5, [0.0, 0.02, 0.5], count=2), "eraser")
     assert store.model_for("eraser", "eraser", 6).mean[2] == -0.5
+
+
+def test_an_assumed_model_is_the_last_resort_and_never_saved(tmp_path):
+    spec = load_scenario("clean").object("remote")
+    store = ModelStore([eraser_model(3, [0.0, 0.05, 0.0])], {"eraser": "eraser"})
+    assumed = rule_model(spec, 1)
+    np.testing.assert_allclose(assumed.variance, plausible_spread(assumed.mean) ** 2)
+    store.assume(assumed)
+    assert store.model_for("remote", "remote", 1) is assumed
+    assert store.model_for("remote", "remote", 2) is None
+    store.add(ForwardModel("remote", 1, 0.05, 1, np.array([0.0499, 0.0, 0.0]), np.zeros(3)),
+              "remote")
+    assert store.model_for("remote", "remote", 1).mean[0] == 0.0499   # its own first trial
+    store.save(tmp_path / "models.yaml")
+    assert ModelStore.load(tmp_path / "models.yaml").assumed == {}
 
 
 def test_a_primitive_never_tried_borrows_a_class_mates_model(store):

@@ -258,6 +258,8 @@ class ModelStore:
                  classes: dict[str, str] | None = None) -> None:
         self.models: dict[tuple[str, int], ForwardModel] = {}
         self.classes: dict[str, str] = dict(classes or {})
+        # Models assumed without any trial (assume); planned with last, never saved.
+        self.assumed: dict[tuple[str, int], ForwardModel] = {}
         for model in models:
             self.add(model)
 
@@ -265,6 +267,11 @@ class ModelStore:
         self.models[(model.object_id, model.primitive)] = model
         if object_class is not None:
             self.classes[model.object_id] = object_class
+
+    def assume(self, model: ForwardModel) -> None:
+        """Plan with `model` where nothing learned covers its primitive (model_for's last
+        resort); it is not a trial, so it is neither saved nor averaged into what is learned."""
+        self.assumed[(model.object_id, model.primitive)] = model
 
     def get(self, object_id: str, primitive: int) -> ForwardModel:
         try:
@@ -288,9 +295,10 @@ class ModelStore:
            mass and friction);
         3. the mirror image of the primitive's partner (MIRROR_PARTNER), the object's own or a
            class-mate's, with two trials (the objects are symmetric, of uniform density);
-        4. the object's own single trial; else None.
+        4. the object's own single trial;
+        5. a model assumed for it (assume); else None.
 
-        2 and 3 are for primitives the robot could not try on this object, blocked while
+        2, 3 and 5 are for primitives the robot could not try on this object, blocked while
         learning: they are still worth planning with.
         """
         own = self.models.get((object_id, primitive))
@@ -307,7 +315,7 @@ class ModelStore:
             for source in sources:
                 if source is not None and source.count >= 2:
                     return mirrored(source, primitive)
-        return own
+        return own or self.assumed.get((object_id, primitive))
 
     def check_covers(self, objects: Sequence[tuple[str, str, str]],
                      every_primitive: bool = True, borrow: bool = False) -> None:

@@ -80,6 +80,7 @@ from tsrrt_planner.model_learning import (
 )
 from tsrrt_planner.objectives import build_objective
 from tsrrt_planner.problem import PlanningProblem, out_of_reach
+from tsrrt_planner.push_rule import rule_model
 from tsrrt_planner.task_space_rrt import MODES, PlanResult
 
 # String parameters and their allowed values (numbers have ranges in their descriptors).
@@ -559,20 +560,27 @@ class PlannerNode(Node):
             margin=self._param("planning_margin"))
 
     def _check_models(self, reason: str) -> None:
-        """Every object needs models; a primitive without one (never tried: it was blocked
-        while learning) is left out of planning, with a warning."""
+        """Every object needs models; a primitive nothing learned covers (never tried: it was
+        blocked while learning, and neither a class-mate nor its mirror partner has one) is
+        planned with the physics-free push rule until it is executed, with a warning."""
         if self.store_problem is not None:
             raise GoalFailed(reason, f"the model file could not be read: {self.store_problem}")
-        objects = [(o.id, o.object_class, o.shape) for o in self.scenario.objects
-                   if o.id not in self.unreachable]
+        objects = [o for o in self.scenario.objects if o.id not in self.unreachable]
         try:
-            self.store.check_covers(objects, every_primitive=False, borrow=True)
+            self.store.check_covers([(o.id, o.object_class, o.shape) for o in objects],
+                                    every_primitive=False, borrow=True)
         except ModelFileError as error:
             raise GoalFailed(reason, str(error)) from None
-        try:
-            self.store.check_covers(objects, borrow=True)
-        except ModelFileError as error:
-            self.get_logger().warning(f"planning without some primitives: {error}")
+        assumed = []
+        for spec in objects:
+            for primitive in primitives_for(spec.shape):
+                if self.store.model_for(spec.id, spec.object_class, primitive) is None:
+                    self.store.assume(rule_model(spec, primitive))
+                    assumed.append(f"{spec.id} primitive {primitive}")
+        if assumed:
+            self.get_logger().warning(
+                f"nothing learned covers {', '.join(assumed)}: planned with the physics-free "
+                "push rule until executed")
 
     def _plan_task(self, goal_handle) -> PlanTask.Result:
         result = PlanTask.Result()

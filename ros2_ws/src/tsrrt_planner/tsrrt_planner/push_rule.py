@@ -34,7 +34,12 @@ from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import ObjectSpec, load_scenario
 from tsrrt_executor.push_primitives import ROTATION_CONTACT_FRACTION, primitives_for
 from tsrrt_planner.errors import ModelError
-from tsrrt_planner.model_learning import LEARN_MODEL, ConfidenceStoppingRule, ModelStore
+from tsrrt_planner.model_learning import (
+    LEARN_MODEL,
+    ConfidenceStoppingRule,
+    ForwardModel,
+    ModelStore,
+)
 
 NOMINAL = 0.05
 
@@ -64,6 +69,23 @@ def plausible_displacement(spec: ObjectSpec, primitive: int, push_length: float)
     return np.array([dx, dy, dtheta])
 
 
+def plausible_spread(expected: np.ndarray) -> np.ndarray:
+    """Standard deviation (3,) of the rule's noise around an expected displacement."""
+    return 0.08 * np.abs(expected) + np.array([0.0015, 0.0015, 0.02])
+
+
+def rule_model(spec: ObjectSpec, primitive: int, push_length: float = NOMINAL) -> ForwardModel:
+    """The rule as a forward model, for a primitive the robot has no trial of at all.
+
+    Its variance is the rule's noise (count 1: m2 is the variance); the noise being generous
+    (5.5 mm for a 5 cm push), the first execution of the push diverges from it only when the
+    rule is far off, and that execution starts the object's own model either way.
+    """
+    expected = plausible_displacement(spec, primitive, push_length)
+    return ForwardModel(spec.id, primitive, push_length, 1, expected,
+                        plausible_spread(expected) ** 2)
+
+
 class SimulatedPusher:
     """APPLY_ACTION without physics: the plausible rule plus Gaussian noise, seeded."""
 
@@ -75,8 +97,7 @@ class SimulatedPusher:
     def apply_action(self, object_id: str, primitive: int, push_length: float
                      ) -> tuple[np.ndarray, Pose2D]:
         expected = plausible_displacement(self.specs[object_id], primitive, push_length)
-        sigma = 0.08 * np.abs(expected) + np.array([0.0015, 0.0015, 0.02])
-        delta = expected + self.rng.normal(0.0, sigma)
+        delta = expected + self.rng.normal(0.0, plausible_spread(expected))
         pose = self.poses[object_id].apply_displacement(delta)
         self.poses[object_id] = pose
         return delta, pose
