@@ -10,6 +10,7 @@ import pytest
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario
+from tsrrt_executor.push_primitives import ball_path_points, push_geometry
 from tsrrt_planner.closed_loop import (
     ExecutionFailed,
     LearningArea,
@@ -144,6 +145,26 @@ def test_learning_area_keeps_faces_within_reach() -> None:
     assert area.problem(spec, start, Pose2D(0.40, 0.0, 0.0)) is None
     # Room counts unreachable faces, so repositioning heads back into reach.
     assert area.room(spec, Pose2D(0.31, 0.0, 0.0)) < area.room(spec, Pose2D(0.40, 0.0, 0.0)) - 0.04
+
+
+def test_a_rotation_trial_must_leave_the_turn_undoable() -> None:
+    """A trial of 5 may not end where 6 (which turns it back) is out of reach or blocked."""
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    after = Pose2D(0.45, 0.0, 0.3)
+    back = ball_path_points(push_geometry(spec.shape, spec.length, spec.width, spec.height,
+                                          after, 6))
+    nearest = float(np.linalg.norm(back, axis=1).min())
+    short_arm = LearningArea(scenario.table, reach=AnnulusReachability(0.2, nearest - 1e-3))
+    reason = short_arm.problem(spec, after, after, primitive=5)
+    assert reason is not None and "turned back from there (primitive 6)" in reason
+    assert short_arm.problem(spec, after, after, primitive=3) is None
+    plate = load_scenario("tset3").objects[0]
+    in_the_way = Pose2D(*back[len(back) // 2], 0.0)
+    blocked = LearningArea(scenario.table, ((plate, in_the_way),))
+    assert "turned back" in blocked.problem(spec, after, after, primitive=5)
+    assert LearningArea(scenario.table, reach=AnnulusReachability()).problem(
+        spec, after, after, primitive=5) is None
 
 
 def test_footprint_gap_of_boxes_and_discs() -> None:
