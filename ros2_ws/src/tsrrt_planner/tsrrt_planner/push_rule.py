@@ -78,7 +78,7 @@ def rule_model(spec: ObjectSpec, primitive: int, push_length: float = NOMINAL) -
     """The rule as a forward model, for a primitive the robot has no trial of at all.
 
     Its variance is the rule's noise (count 1: m2 is the variance); the noise being generous
-    (5.5 mm for a 5 cm push), the first execution of the push diverges from it only when the
+    (5.3 mm for a 5 cm push), the first execution of the push diverges from it only when the
     rule is far off, and that execution starts the object's own model either way.
     """
     expected = plausible_displacement(spec, primitive, push_length)
