@@ -11,6 +11,7 @@ import pytest
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario
 from tsrrt_executor.push_primitives import ball_path_points, push_geometry
+from tsrrt_planner import closed_loop
 from tsrrt_planner.closed_loop import (
     ExecutionFailed,
     LearningArea,
@@ -32,6 +33,7 @@ from tsrrt_planner.model_learning import (
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import SimulatedPusher, learn_all
 from tsrrt_planner.reachability import AnnulusReachability
+from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT
 
 
 def _executor(pusher: SimulatedPusher):
@@ -342,6 +344,25 @@ def _task(name: str, seed: int, bump_after: int | None = None):
     report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound.cost,
                       target=bound.state)
     return scenario, report
+
+
+def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
+    budgets = []
+
+    def recording(*args, **kwargs):
+        budgets.append(kwargs["time_budget_s"])
+        return TASK_SPACE_RRT(*args, **kwargs)
+
+    monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", recording)
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
+    settings = TaskSettings(planning_budget_s=30.0, first_planning_budget_s=40.0,
+                            planning_max_nodes=150, max_pushes=30)
+    run_task(scenario, store, _SimulatedRobot(scenario, seed=100), AnnulusReachability(),
+             settings, bound.cost, target=bound.state)
+    assert len(budgets) >= 2
+    assert budgets[0] == 40.0 and set(budgets[1:]) == {30.0}
 
 
 def test_task_loop_lowers_the_cost_and_converges() -> None:
