@@ -561,16 +561,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         report.final_cost = current
         if not report.costs:
             report.costs.append(current)
-        noise = execution_noise_cost(problem, result, store)
-        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings, noise)
-        if (float(result.costs[steps]) - result.best_cost >= noise
-                and _negligible(current - float(result.costs[steps]), current, report, settings)
-                and not _negligible(current - result.best_cost, current, report, settings)):
-            # The part before the detour gains next to nothing and the detour more than its
-            # errors cost: cut there, the task would stop (two_boxes, a 12-s first plan: the
-            # remote's way to its point was cut after one push, and the task ended 0.0856
-            # above an optimum of 0).
-            steps = len(result.steps)
+        steps = steps_worth_executing(np.asarray(result.costs, dtype=float), settings,
+                                      execution_noise_cost(problem, result, store))
         # what executing the chosen part of the plan predicts (not the unexecuted rest's best)
         report.predicted_cost = float(result.costs[steps])
         improvement = current - float(result.costs[steps])
