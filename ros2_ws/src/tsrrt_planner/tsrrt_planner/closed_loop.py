@@ -425,9 +425,9 @@ class TaskEnvironment(Protocol):
 class TaskSettings:
     planner: str = "tsrrt"
     planning_budget_s: float = 2.0
-    # The task's first plan chooses the basin the task ends in: it gets at least this long.
-    # From tset6's observed start after learning, 8-s plans reached 2.4-5.2 % above the bound
-    # in 6 of 8 seeds and 24 % in 2, 12-s plans 2.4-5.2 % in 7 of 8 (4-s plans 3 of 8).
+    # The task's first plan chooses the basin the task ends in: it gets at least this long
+    # (docs/planner.md: from tset6's observed start 12-s plans reach 2.4-5.2 % above the bound
+    # in 7 of 8 seeds, 8-s plans in 6 of 8; but longer plans also find detours that get cut).
     first_planning_budget_s: float = 0.0
     planning_max_nodes: int | None = None  # a node budget makes planning repeatable
     max_pushes: int = 150            # the paper's robot executed up to 122 (tset3)

@@ -235,7 +235,7 @@ class PlannerNode(Node):
         declare("planner", "tsrrt", ParameterDescriptor(
             description=f"default planner: one of {list(MODES)}"))
         declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
-        declare("first_planning_budget_s", 12.0, _float(0.0, 600.0,
+        declare("first_planning_budget_s", 0.0, _float(0.0, 600.0,
                 "time for a task's first plan (at least planning_budget_s), s"))
         declare("stall_s", 2.0, _float(0.0, 600.0,
                 "RunTask: a plan after the first stops when, near what the plan it replaces "
