@@ -66,6 +66,7 @@ from tsrrt_executor.push_primitives import (
 from tsrrt_planner.collision import box_box_signed_distance, box_disc_signed_distance
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import (
+    MIRROR_PARTNER,
     DisplacementStats,
     ForwardModel,
     ModelStore,
@@ -199,7 +200,7 @@ class LearningArea:
         """Whether the rotation primitive opposite to `primitive` (5 <-> 6) can be pushed on
         `spec` at `pose`: its ball path in the arm's reach and clear of the others."""
         geometry = push_geometry(spec.shape, spec.length, spec.width, spec.height, pose,
-                                 11 - primitive, table_height=self.table.height)
+                                 MIRROR_PARTNER[primitive][0], table_height=self.table.height)
         if self.reach is not None and not self.reach.reachable(
                 ball_path_points(geometry)).all():
             return False
@@ -229,7 +230,8 @@ class LearningArea:
                                                             other_pose) - self.drift:
                 return f"would come within {max(gap, 0.0) * 100:.1f} cm of {other.id!r}"
         if primitive in (5, 6) and not self.turn_is_undoable(spec, primitive, after):
-            return f"could not be turned back from there (primitive {11 - primitive})"
+            return ("could not be turned back from there (primitive "
+                    f"{MIRROR_PARTNER[primitive][0]})")
         return None
 
 

@@ -59,6 +59,13 @@ CONSISTENT_TURN_STD = math.radians(3.0)
 REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_executable samples
 
 
+def shortest_turn(delta_theta: np.ndarray, period: np.ndarray) -> np.ndarray:
+    """Heading differences reduced to the shortest turn modulo `period` (broadcast with them;
+    a period of 0, a disc's, turns by nothing)."""
+    safe = np.where(period > 0, period, 1.0)
+    return np.where(period > 0, (delta_theta + safe / 2) % safe - safe / 2, 0.0)
+
+
 def out_of_reach(spec: ObjectSpec, reachability: Reachability,
                  table_height: float = 0.0) -> bool:
     """True when the arm reaches no push of the object at `spec.pose`: for every primitive some
@@ -316,6 +323,4 @@ class PlanningProblem:
 
     def angle_error(self, delta_theta: np.ndarray) -> np.ndarray:
         """Heading differences (..., n) reduced modulo each object's symmetry (0 for discs)."""
-        period = np.where(self.angle_period > 0, self.angle_period, 1.0)
-        wrapped = (delta_theta + period / 2) % period - period / 2
-        return np.where(self.angle_period > 0, wrapped, 0.0)
+        return shortest_turn(delta_theta, self.angle_period)

@@ -29,7 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.problem import PlanningProblem, shortest_turn
 
 Push = tuple[int, int, float]  # (object index, primitive, push length)
 PATH_PUSH_COST = 0.01   # metres of remaining error one extra push is worth (weighted A*)
@@ -197,9 +197,7 @@ def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndar
     k = len(pairs)
     sweep = np.repeat(state[rows_j], samples, 0)  # (k * samples, 3)
     change = target[rows_j] - state[rows_j]
-    turns = np.zeros((k, n))   # angle_error takes every object's heading difference
-    turns[np.arange(k), rows_j] = change[:, 2]
-    change[:, 2] = problem.angle_error(turns)[np.arange(k), rows_j]   # the shortest turn
+    change[:, 2] = shortest_turn(change[:, 2], problem.angle_period[rows_j])
     sweep += np.tile(fractions, k)[:, None] * np.repeat(change, samples, 0)
     clear = footprints_clear(problem, np.repeat(rows_i, samples), np.repeat(target[rows_i],
                                                                             samples, 0),
