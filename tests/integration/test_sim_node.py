@@ -255,6 +255,21 @@ def test_sigterm_shuts_the_node_down_cleanly(launch):
     assert "Traceback" not in log, log
 
 
+
+def test_sigterm_while_starting_is_a_shutdown_not_a_refusal(launch):
+    """The signal reaches the whole group, the render worker too, before the node is up: the
+    node must not report that it cannot start (exit 1) because its worker was killed."""
+    process = launch.start("tsrrt_sim", "sim_node", "scenario:=" + SCENARIO,
+                           env=launch.other_domain_env())
+    try:
+        time.sleep(0.5)
+        returncode = process.stop(signal.SIGTERM)
+    finally:
+        process.stop(signal.SIGKILL)
+    log = process.log()
+    assert returncode == 0, log
+    assert "cannot start" not in log and "Traceback" not in log, log
+
 def test_sigterm_during_a_trajectory_shuts_the_node_down_cleanly(sim, probe):
     """Shutting down stops physics: a trajectory goal still running must end then (aborted),
     or its thread keeps the process from exiting until it is killed. It stops the module's sim:

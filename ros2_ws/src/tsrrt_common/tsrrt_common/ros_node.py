@@ -7,6 +7,7 @@ The one module of tsrrt_common that imports rclpy; the ROS-free cores never impo
 from __future__ import annotations
 
 import faulthandler
+import signal
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -121,11 +122,15 @@ class HandoffExecutor(MultiThreadedExecutor):
 
 def run_node(make_node: Callable[[], Node], name: str, threads: int,
              args: list[str] | None = None) -> None:
-    """Spin a node until SIGINT/SIGTERM; a bad file or parameter refuses to start (exit 1).
+    """Spin a node until SIGINT/SIGTERM; a bad file or parameter refuses to start (exit 1), a
+    signal while starting is a shutdown like any other (exit 0).
 
     A signal shuts the context down while executor threads may still be waiting; their
     "context is not valid" error is part of an orderly shutdown, not a crash.
     """
+    # A process that will not stop gets SIGUSR1 before SIGKILL (processes.stop_process_group):
+    # its threads' stacks then say where it hung, however far it got towards shutting down.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     rclpy.init(args=args)
     node = None
     refused = False
@@ -137,8 +142,9 @@ def run_node(make_node: Callable[[], Node], name: str, threads: int,
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (TsrrtError, ParameterException) as error:
-        rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")
-        refused = True
+        if rclpy.ok():      # else a signal stopped the start (e.g. killing a helper process)
+            rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")
+            refused = True
     except rclpy_implementation.RCLError:
         if rclpy.ok():
             raise

@@ -25,9 +25,11 @@ _STOP_DRAIN_TIMEOUT_S = 2.0   # longest a frame in flight is waited for when clo
 def _serve(connection: Connection, scenario: Scenario, camera: OverheadCamera,
            simple_robot_visuals: bool) -> None:
     """Worker process main loop: ('load', Scenario) and ('render', VisualState) requests."""
-    # The parent decides when this process ends (a closed pipe or "stop"); a Ctrl-C sent to the
-    # whole process group must not kill it half-way through a reply.
+    # The parent decides when this process ends (a closed pipe or "stop"); a Ctrl-C or SIGTERM
+    # sent to the whole process group must not kill it half-way through a reply, nor before the
+    # parent has stopped the physics thread that is waiting for its frames.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     world = SimWorld(scenario, camera=camera, simple_robot_visuals=simple_robot_visuals)
     connection.send(("ready", None))
     try:
