@@ -89,6 +89,23 @@ def test_improved_mode_reaches_the_bound_on_tset3(problem, bound):
     assert result.gap() < 0.02
 
 
+
+def test_shortest_within_trades_a_little_cost_for_fewer_pushes(problem, bound):
+    """The plan to the shallowest node near the best: on tset3 (200 nodes, seed 0) the best
+    node is 33 pushes deep, one within 1 % of the bound is 10 deep."""
+    tolerance = 0.01 * abs(bound.cost)
+    best, shortest = (TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=200,
+                                     target=bound.state, shortest_within=within)
+                      for within in (0.0, tolerance))
+    assert len(shortest.steps) < len(best.steps)
+    assert shortest.best_cost <= best.best_cost + tolerance
+    np.testing.assert_allclose(shortest.states, replay(problem, shortest), atol=1e-12)
+
+
+def test_a_negative_shortest_within_is_an_error(problem):
+    with pytest.raises(PlannerError, match="shortest_within"):
+        TASK_SPACE_RRT(problem, "tsrrt", max_nodes=10, shortest_within=-1.0)
+
 def test_cancel_and_progress(problem):
     event = threading.Event()
     seen = []

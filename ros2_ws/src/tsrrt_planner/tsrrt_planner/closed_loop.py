@@ -483,15 +483,22 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
               progress: Progress | None = None, max_nodes: int | None = None,
               replaced: tuple[PlanResult, int] | None = None,
               good_enough_cost: float | None = None,
-              stall: StallRule | None = None, budget_s: float | None = None
-              ) -> tuple[PlanningProblem, PlanResult]:
+              stall: StallRule | None = None, budget_s: float | None = None,
+              task_range: float = 0.0) -> tuple[PlanningProblem, PlanResult]:
     """TASK_SPACE_RRT from the observed state with the current models. A replan is given the
     plan it replaces and how many of its pushes were executed (`replaced`): the rest warm-starts
     the search, and its final state is REARRANGE's first goal. The search stops early once it
     finds a state at `good_enough_cost`, or once it stalls (`stall`); it lasts at most
-    `budget_s` (default settings.planning_budget_s)."""
+    `budget_s` (default settings.planning_budget_s). The plan is the shortest to a state within
+    half of `convergence` of the best found, of the larger of the current cost, its distance to
+    the lower bound and `task_range` (the task's start cost to the lower bound): the task loop
+    counts a smaller gain as none (`_negligible`), so pushes spent on it are wasted."""
     problem = PlanningProblem(scenario_at(scenario, poses), store, reachability,
                               margin=settings.margin)
+    start_cost = float(problem.objective.cost(problem.start))
+    scale = max(abs(start_cost), task_range)
+    if math.isfinite(lower_bound_cost):
+        scale = max(scale, start_cost - lower_bound_cost)
     warm_start, previous_goal = (), None
     if replaced is not None:
         plan, executed = replaced
@@ -502,7 +509,8 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
                             progress=progress, cancel=cancel,
                             lower_bound_cost=lower_bound_cost, target=target,
                             warm_start=warm_start, previous_goal=previous_goal,
-                            good_enough_cost=good_enough_cost, stall=stall)
+                            good_enough_cost=good_enough_cost, stall=stall,
+                            shortest_within=0.5 * settings.convergence * scale)
     return problem, result
 
 
@@ -551,9 +559,13 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         first = math.isnan(report.start_cost)
         budget = (max(settings.first_planning_budget_s, settings.planning_budget_s) if first
                   else settings.planning_budget_s)
+        task_range = (report.start_cost - lower_bound_cost
+                      if math.isfinite(report.start_cost) and math.isfinite(lower_bound_cost)
+                      else 0.0)
         problem, result = plan_from(scenario, observed, store, reachability, settings,
                                     lower_bound_cost, target, cancelled, replaced=replaced,
-                                    good_enough_cost=good_enough, stall=stall, budget_s=budget)
+                                    good_enough_cost=good_enough, stall=stall, budget_s=budget,
+                                    task_range=task_range)
         replaced = None
         report.planning_s += result.elapsed_s
         on_plan(result)
