@@ -270,6 +270,33 @@ def test_executed_push_updates_model_with_eq9_at_nominal_length() -> None:
     np.testing.assert_allclose(model.variance, all_deltas.var(axis=0), atol=1e-12)
 
 
+
+def test_a_push_its_model_does_not_explain_is_learned_from_clipped() -> None:
+    """Clipped to the divergence rule for one push: 4 mm + 3 sigma, 2 deg + 3 sigma."""
+    statistics = DisplacementStats()
+    for rotation in (0.001, -0.001, 0.0):
+        statistics.update(np.array([0.05, 0.0, rotation]))
+    store = ModelStore([ForwardModel.from_stats("eraser", 1, 0.05, statistics)],
+                       {"eraser": "eraser"})
+    gate = PredictionTracker(load_scenario("clean").objects)
+    before = Pose2D(0.4, 0.0, 0.3)
+    bumped = PushOutcome(before, before.apply_displacement(np.array([0.03, 0.0, 0.21])))
+    assert not update_model_with_push(store, "eraser", "eraser", 1, 0.03, bumped, gate=gate)
+    model = store.get("eraser", 1)
+    limit = math.radians(2.0) + 3.0 * math.sqrt(2e-6 / 3) * 0.6     # for a 3-cm push
+    assert model.count == 4
+    np.testing.assert_allclose(model.mean[2], (limit / 0.6) / 4, rtol=1e-6)
+    usual = np.array([0.032, 0.002, 0.02])
+    assert update_model_with_push(store, "eraser", "eraser", 1, 0.03,
+                                  PushOutcome(before, before.apply_displacement(usual)),
+                                  gate=gate)
+    # without the gate, or with too few trials of its own to judge by, it is folded in whole
+    few = ModelStore([ForwardModel("eraser", 1, 0.05, 2, np.array([0.05, 0.0, 0.0]),
+                                   np.full(3, 1e-8))], {"eraser": "eraser"})
+    assert update_model_with_push(few, "eraser", "eraser", 1, 0.03, bumped, gate=gate)
+    np.testing.assert_allclose(few.get("eraser", 1).mean[2], 0.21 / 0.6 / 3, rtol=1e-9)
+
+
 def test_push_planned_with_a_mirrored_model_starts_the_objects_own() -> None:
     store = ModelStore([ForwardModel("eraser", 1, 0.05, 4, np.array([0.05, 0.0, 0.01]),
                                      np.full(3, 1e-6))], {"eraser": "eraser"})

@@ -685,6 +685,10 @@ class PlannerNode(Node):
         result.final_cost, result.predicted_cost = report.final_cost, report.predicted_cost
         result.lower_bound, result.pushes = lower_bound, report.pushes
         result.replans, result.planning_s = report.replans, report.planning_s
+        if report.clipped:
+            self.get_logger().info(
+                f"{report.clipped} executed pushes learned from clipped to their model's "
+                "confidence (a neighbour or the table edge in the way?)")
         last = report.visited[-1]
         result.final_objects = [_object_state(spec, last[spec.id])
                                 for spec in self.scenario.objects]
