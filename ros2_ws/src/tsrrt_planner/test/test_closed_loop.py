@@ -575,14 +575,45 @@ def test_a_plan_that_detours_for_less_than_its_errors_cost_is_not_executed(monke
     assert report.converged and report.pushes == 0
     assert report.predicted_cost == report.final_cost   # the detour was not executed
     monkeypatch.setattr(closed_loop, "plan_from", plan(large))
-    report = run_task(scenario, store, robot, AnnulusReachability(), settings, -1.0)
-    assert report.pushes == 1 and report.planned == 7
+    first_planned: list[int] = []
+    run_task(scenario, store, robot, AnnulusReachability(), TaskSettings(max_pushes=7), -1.0,
+             on_event=lambda phase, report: first_planned.append(report.planned)
+             if phase == "executing" and report.pushes == 0 else None)
+    assert first_planned == [7]
     monkeypatch.setattr(closed_loop, "plan_from",
                         plan([-0.02, 0.0, 0.0, 0.0, 0.0, 0.2, -0.02 - noise / 2]))
     report = run_task(scenario, store, robot, AnnulusReachability(),
                       TaskSettings(max_pushes=5), -1.0)
     assert report.planned == 1
 
+
+
+def test_a_plan_longer_than_the_push_budget_left_goes_to_the_best_state_within_it(
+        monkeypatch) -> None:
+    """Not half-way into a detour: of a plan down, up and down again, with 4 pushes left the
+    task executes the first 2 (the best state within 4); it stops on the push budget."""
+    from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
+
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    problem = PlanningProblem(scenario, store, AnnulusReachability())
+    robot = _SimulatedRobot(scenario, seed=100)
+    now = float(problem.objective.cost(problem.start))
+    costs = np.array([now, now - 0.02, now - 0.04, now + 0.2, now + 0.3, now - 0.1])
+    plan = PlanResult("tsrrt", 0, tuple(PlanStep("platter_1", 3, 0.01) for _ in costs[1:]),
+                      np.stack([problem.start] * len(costs)), costs, 1, 0.0, (), "time")
+    monkeypatch.setattr(closed_loop, "plan_from", lambda *args, **kwargs: (problem, plan))
+    monkeypatch.setattr(closed_loop, "execution_noise_cost", lambda *args: 1.0)
+    planned: list[int] = []
+
+    def on_event(phase: str, report) -> None:
+        if phase == "executing" and report.pushes == 0:
+            planned.append(report.planned)
+
+    report = run_task(scenario, store, robot, AnnulusReachability(),
+                      TaskSettings(max_pushes=4, detour_max_climb=1e9), -1.0, on_event=on_event)
+    assert planned[0] == 2
+    assert report.pushes <= 4 and report.stop_reason == "push budget" and not report.converged
 
 def test_a_detour_is_cut_before_the_climb_only_when_it_gains_less_than_its_errors_cost(
 ) -> None:
