@@ -374,10 +374,11 @@ def _task(name: str, seed: int, bump_after: int | None = None):
 
 
 def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
-    budgets = []
+    budgets, deadlines = [], []
 
     def recording(*args, **kwargs):
         budgets.append(kwargs["time_budget_s"])
+        deadlines.append(kwargs["soft_deadline"])
         return TASK_SPACE_RRT(*args, **kwargs)
 
     monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", recording)
@@ -390,6 +391,10 @@ def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
              settings, bound.cost, target=bound.state)
     assert len(budgets) >= 2
     assert budgets[0] == 40.0 and set(budgets[1:]) == {30.0}
+    # ... but past the usual budget only while it is more than first_plan_gap above the bound
+    assert deadlines[0].seconds == 30.0
+    assert deadlines[0].cost == pytest.approx(bound.cost + 0.1 * abs(bound.cost))
+    assert set(deadlines[1:]) == {None}
 
 
 def test_task_loop_lowers_the_cost_and_converges() -> None:

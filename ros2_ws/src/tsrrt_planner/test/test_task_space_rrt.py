@@ -18,6 +18,7 @@ from tsrrt_planner.task_space_rrt import (
     MODES,
     TASK_SPACE_RRT,
     PlanStep,
+    SoftDeadline,
     StallRule,
     interchangeable_groups,
     match_to,
@@ -105,6 +106,15 @@ def test_shortest_within_trades_a_little_cost_for_fewer_pushes(problem, bound):
 def test_a_negative_shortest_within_is_an_error(problem):
     with pytest.raises(PlannerError, match="shortest_within"):
         TASK_SPACE_RRT(problem, "tsrrt", max_nodes=10, shortest_within=-1.0)
+
+
+def test_a_soft_deadline_stops_a_search_only_once_its_best_is_good_enough(problem, bound):
+    reached = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,
+                             target=bound.state, soft_deadline=SoftDeadline(0.3, math.inf))
+    assert reached.stop_reason == "time" and reached.elapsed_s < 30.0
+    never = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,
+                           target=bound.state, soft_deadline=SoftDeadline(0.3, -math.inf))
+    assert never.stop_reason == "nodes"
 
 def test_cancel_and_progress(problem):
     event = threading.Event()

@@ -80,7 +80,13 @@ from tsrrt_planner.model_learning import (
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import plausible_displacement, transfer_efficiency
 from tsrrt_planner.reachability import Reachability
-from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanResult, Progress, StallRule
+from tsrrt_planner.task_space_rrt import (
+    TASK_SPACE_RRT,
+    PlanResult,
+    Progress,
+    SoftDeadline,
+    StallRule,
+)
 
 # A repositioning push must gain at least this much room (m) to be worth a trial.
 REPOSITION_GAIN = 0.005
@@ -465,10 +471,12 @@ class TaskEnvironment(Protocol):
 class TaskSettings:
     planner: str = "tsrrt"
     planning_budget_s: float = 2.0
-    # The task's first plan chooses the basin the task ends in: it gets at least this long
-    # (docs/planner.md: from tset6's observed start 12-s plans reach 2.4-5.2 % above the bound
-    # in 7 of 8 seeds, 8-s plans in 6 of 8; but longer plans also find detours that get cut).
+    # The task's first plan chooses the basin the task ends in: it may take up to this long
+    # (at least planning_budget_s), but only while its best is more than first_plan_gap above
+    # the lower bound (docs/planner.md: from tset6's observed start, 8-s plans were still 16-27 %
+    # above it in 3 of 8 seeds at 4 s and 1 at 8 s; all 8 were within 3.7 % at 12 s).
     first_planning_budget_s: float = 0.0
+    first_plan_gap: float = 0.10
     planning_max_nodes: int | None = None  # a node budget makes planning repeatable
     max_pushes: int = 150            # the paper's robot executed up to 122 (tset3)
     time_budget_s: float = 600.0
@@ -523,7 +531,8 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
               replaced: tuple[PlanResult, int] | None = None,
               good_enough_cost: float | None = None,
               stall: StallRule | None = None, budget_s: float | None = None,
-              task_range: float = 0.0) -> tuple[PlanningProblem, PlanResult]:
+              task_range: float = 0.0, extend_above_gap: float | None = None
+              ) -> tuple[PlanningProblem, PlanResult]:
     """TASK_SPACE_RRT from the observed state with the current models. A replan is given the
     plan it replaces and how many of its pushes were executed (`replaced`): the rest warm-starts
     the search, and its final state is REARRANGE's first goal. The search stops early once it
@@ -531,13 +540,22 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
     `budget_s` (default settings.planning_budget_s). The plan is the shortest to a state within
     half of `convergence` of the best found, of the larger of the current cost, its distance to
     the lower bound and `task_range` (the task's start cost to the lower bound): the task loop
-    counts a smaller gain as none (`_negligible`), so pushes spent on it are wasted."""
+    counts a smaller gain as none (`_negligible`), so pushes spent on it are wasted. With
+    `extend_above_gap`, the search stops at settings.planning_budget_s if its best is within that
+    gap of the lower bound by then (relative to |bound|, or to the start's distance from a zero
+    bound), else goes on until it is or `budget_s` ends (a task's first plan)."""
     problem = PlanningProblem(scenario_at(scenario, poses), store, reachability,
                               margin=settings.margin)
     start_cost = float(problem.objective.cost(problem.start))
     scale = max(abs(start_cost), task_range)
+    soft_deadline = None
     if math.isfinite(lower_bound_cost):
         scale = max(scale, start_cost - lower_bound_cost)
+        if extend_above_gap is not None:
+            reference = (abs(lower_bound_cost) if abs(lower_bound_cost) > 1e-9
+                         else start_cost - lower_bound_cost)
+            soft_deadline = SoftDeadline(settings.planning_budget_s,
+                                         lower_bound_cost + extend_above_gap * reference)
     warm_start, previous_goal = (), None
     if replaced is not None:
         plan, executed = replaced
@@ -549,7 +567,8 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
                             lower_bound_cost=lower_bound_cost, target=target,
                             warm_start=warm_start, previous_goal=previous_goal,
                             good_enough_cost=good_enough_cost, stall=stall,
-                            shortest_within=0.5 * settings.convergence * scale)
+                            shortest_within=0.5 * settings.convergence * scale,
+                            soft_deadline=soft_deadline)
     return problem, result
 
 
@@ -607,7 +626,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         problem, result = plan_from(scenario, observed, store, reachability, settings,
                                     lower_bound_cost, target, cancelled, replaced=replaced,
                                     good_enough_cost=good_enough, stall=stall, budget_s=budget,
-                                    task_range=task_range)
+                                    task_range=task_range,
+                                    extend_above_gap=settings.first_plan_gap if first else None)
         replaced = None
         report.planning_s += result.elapsed_s
         on_plan(result)

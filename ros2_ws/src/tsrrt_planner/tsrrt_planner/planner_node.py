@@ -235,8 +235,12 @@ class PlannerNode(Node):
         declare("planner", "tsrrt", ParameterDescriptor(
             description=f"default planner: one of {list(MODES)}"))
         declare("planning_budget_s", 8.0, _float(0.05, 600.0, "time per (re)plan, s"))
-        declare("first_planning_budget_s", 0.0, _float(0.0, 600.0,
-                "time for a task's first plan (at least planning_budget_s), s"))
+        declare("first_planning_budget_s", 12.0, _float(0.0, 600.0,
+                "longest time for a task's first plan (at least planning_budget_s); past "
+                "planning_budget_s only while its best is above first_plan_gap, s"))
+        declare("first_plan_gap", 0.10, _float(0.0, 10.0,
+                "gap to the lower bound above which a task's first plan goes on past "
+                "planning_budget_s (relative to |bound|; to the start's distance if it is 0)"))
         declare("stall_s", 2.0, _float(0.0, 600.0,
                 "RunTask: a plan after the first stops when, near what the plan it replaces "
                 "promised (or the lower bound), its best improves by less than convergence in "
@@ -555,6 +559,7 @@ class PlannerNode(Node):
         return TaskSettings(
             planner=planner, planning_budget_s=budget_s or self._param("planning_budget_s"),
             first_planning_budget_s=self._param("first_planning_budget_s"),
+            first_plan_gap=self._param("first_plan_gap"),
             max_pushes=max_pushes or self._param("max_pushes"),
             time_budget_s=time_budget_s or self._param("time_budget_s"),
             convergence=self._param("convergence"),

@@ -104,6 +104,16 @@ class StallRule:
 
 
 @dataclass(frozen=True)
+class SoftDeadline:
+    """Stop a search at `seconds` if its best cost is at or below `cost` by then, else as soon
+    as it is (within the time budget): a task's first plan, which chooses the basin the task
+    ends in, gets more time only when it has not yet found a good one."""
+
+    seconds: float
+    cost: float
+
+
+@dataclass(frozen=True)
 class PlanStep:
     """One push: object id, primitive 1-6, push length in metres."""
 
@@ -198,14 +208,17 @@ class _Search:
                  time_budget_s: float | None, max_nodes: int | None, progress: Progress | None,
                  cancel: Cancel | None, orientation_weights: np.ndarray,
                  good_enough_cost: float | None = None,
-                 stall: StallRule | None = None, shortest_within: float = 0.0) -> None:
+                 stall: StallRule | None = None, shortest_within: float = 0.0,
+                 soft_deadline: SoftDeadline | None = None) -> None:
         self.problem, self.mode, self.seed, self.config = problem, mode, seed, config
         self.good_enough_cost = good_enough_cost
         self.stall = stall
+        self.soft_deadline = soft_deadline
         self.shortest_within = shortest_within
         self.rng = np.random.default_rng(seed)
         self.time_budget_s, self.max_nodes = time_budget_s, max_nodes
         self.deadline_s = time_budget_s  # the result is due then (tsrrt searches for less)
+        self.search_share = 1.0  # of a budget, the part spent searching (tsrrt: the rest shortens)
         self.progress = progress
         self.cancelled = (cancel.is_set if isinstance(cancel, threading.Event) else cancel)
         self.began = time.perf_counter()
@@ -230,6 +243,11 @@ class _Search:
             raise _Stop("time")
         if self.stall is not None and self.stalled(self.stall):
             raise _Stop("stalled")
+        soft = self.soft_deadline
+        if (soft is not None and self.best_cost <= soft.cost
+                and self.elapsed() >= soft.seconds * self.search_share):
+            self.deadline_s = soft.seconds
+            raise _Stop("time")
         if self.progress is not None and self.checks % 50 == 0:
             self.progress(ProgressInfo(self.elapsed(), self.tree.size, self.best_cost))
 
@@ -585,6 +603,7 @@ class _TsrrtSearch(_Search):
         super().__init__(*args, **kwargs)
         if self.time_budget_s is not None:
             self.time_budget_s *= 1.0 - SHORTCUT_SHARE
+        self.search_share = 1.0 - SHORTCUT_SHARE
         self.previous_goal = previous_goal
         self.groups = interchangeable_groups(self.problem)
         self.length_grid = np.geomspace(self.problem.min_length, self.problem.max_length,
@@ -958,7 +977,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
                    warm_start: Sequence[PlanStep] = (),
                    previous_goal: np.ndarray | None = None,
                    good_enough_cost: float | None = None,
-                   stall: StallRule | None = None, shortest_within: float = 0.0) -> PlanResult:
+                   stall: StallRule | None = None, shortest_within: float = 0.0,
+                   soft_deadline: SoftDeadline | None = None) -> PlanResult:
     """Plan pushes that lower the objective; returns the best plan found (anytime).
 
     Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
@@ -986,6 +1006,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
             so not repeatable by seed.
         shortest_within: return the plan with the fewest pushes to a state within this much
             (absolute cost) of the best found, rather than the plan to the best (0).
+        soft_deadline: stop early once past its time with a best cost at or below its cost
+            (SoftDeadline; stop reason "time"). Time-based, so not repeatable by seed.
     """
     if mode not in MODES:
         raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
@@ -1018,7 +1040,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     warm_pushes = [(index[step.object_id], step.primitive, step.push_length)
                    for step in warm_start]
     arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
-                 weights, good_enough_cost, stall, shortest_within)
+                 weights, good_enough_cost, stall, shortest_within, soft_deadline)
     search: _Search
     if mode == "greedy":
         search = _GreedySearch(*arguments)
