@@ -270,7 +270,6 @@ def test_executed_push_updates_model_with_eq9_at_nominal_length() -> None:
     np.testing.assert_allclose(model.variance, all_deltas.var(axis=0), atol=1e-12)
 
 
-
 def test_a_push_its_model_does_not_explain_is_learned_from_clipped() -> None:
     """Clipped to the divergence rule for one push: 4 mm + 3 sigma, 2 deg + 3 sigma."""
     statistics = DisplacementStats()
@@ -592,7 +591,6 @@ def test_a_plan_that_detours_for_less_than_its_errors_cost_is_not_executed(monke
     assert report.planned == 1
 
 
-
 def test_a_plan_longer_than_the_push_budget_left_goes_to_the_best_state_within_it(
         monkeypatch) -> None:
     """Not half-way into a detour: of a plan down, up and down again, with 4 pushes left the
@@ -619,6 +617,7 @@ def test_a_plan_longer_than_the_push_budget_left_goes_to_the_best_state_within_i
                       TaskSettings(max_pushes=4, detour_max_climb=1e9), -1.0, on_event=on_event)
     assert planned[0] == 2
     assert report.pushes <= 4 and report.stop_reason == "push budget" and not report.converged
+
 
 def test_a_detour_is_cut_before_the_climb_only_when_it_gains_less_than_its_errors_cost(
 ) -> None:

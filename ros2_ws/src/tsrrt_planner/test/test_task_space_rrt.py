@@ -90,7 +90,6 @@ def test_improved_mode_reaches_the_bound_on_tset3(problem, bound):
     assert result.gap() < 0.02
 
 
-
 def test_shortest_within_trades_a_little_cost_for_fewer_pushes(problem, bound):
     """The plan to the shallowest node near the best: on tset3 (200 nodes, seed 0) the best
     node is 33 pushes deep, one within 1 % of the bound is 10 deep."""
@@ -115,6 +114,7 @@ def test_a_soft_deadline_stops_a_search_only_once_its_best_is_good_enough(proble
     never = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,
                            target=bound.state, soft_deadline=SoftDeadline(0.3, -math.inf))
     assert never.stop_reason == "nodes"
+
 
 def test_cancel_and_progress(problem):
     event = threading.Event()

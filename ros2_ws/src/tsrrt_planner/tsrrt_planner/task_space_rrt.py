@@ -601,9 +601,9 @@ class _TsrrtSearch(_Search):
     def __init__(self, *args, target: np.ndarray | None,
                  previous_goal: np.ndarray | None = None, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        if self.time_budget_s is not None:
-            self.time_budget_s *= 1.0 - SHORTCUT_SHARE
         self.search_share = 1.0 - SHORTCUT_SHARE
+        if self.time_budget_s is not None:
+            self.time_budget_s *= self.search_share
         self.previous_goal = previous_goal
         self.groups = interchangeable_groups(self.problem)
         self.length_grid = np.geomspace(self.problem.min_length, self.problem.max_length,
