@@ -138,7 +138,7 @@ def table(rows: list[dict[str, Any]], planners: Sequence[str]) -> str:
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Benchmark the task-space planners.")
     parser.add_argument("--scenario", required=True, help="scenario name or YAML path")
-    parser.add_argument("--planners", default="paper,paper-nogd,tsrrt,greedy,ompl-rrt")
+    parser.add_argument("--planners", default="paper,paper-nogd,tsrrt,greedy,ompl-sst")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--budget-s", type=float, default=10.0)
     parser.add_argument("--models", type=Path, help="model file (default: shipped for scenario)")
