@@ -21,6 +21,7 @@ from tsrrt_planner.closed_loop import (
     footprint_gap,
     learn_in_place,
     run_task,
+    scenario_at,
     update_model_with_push,
 )
 from tsrrt_planner.lower_bound import lower_bound
@@ -410,6 +411,39 @@ def test_task_loop_replans_after_a_bump() -> None:
     assert report.replans >= 1
     assert any(d.reason == "moved although not pushed" for d in report.divergences)
     assert report.final_cost < report.start_cost
+
+
+def test_a_task_does_not_converge_on_a_world_that_moved_while_it_planned() -> None:
+    """The task starts at its optimum, so its first plan has nothing to do; while it is made,
+    the platter is bumped 3 cm. Declaring convergence from the observation the plan started
+    from would leave the platter where the bump put it."""
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8,
+                        seed=0)
+    at_optimum = scenario_at(scenario, {spec.id: Pose2D(*bound.state[i])
+                                        for i, spec in enumerate(scenario.objects)})
+    robot = _SimulatedRobot(at_optimum, seed=100)
+    bumped: list[Pose2D] = []
+
+    def bump_while_planning(phase: str, report) -> None:
+        if phase == "planning" and not bumped:
+            pose = robot.pusher.poses["platter_1"]
+            robot.pusher.poses["platter_1"] = Pose2D(pose.x - 0.03, pose.y, pose.theta)
+            bumped.append(pose)
+
+    settings = TaskSettings(planning_budget_s=30.0, planning_max_nodes=300, max_pushes=60)
+    report = run_task(at_optimum, store, robot, AnnulusReachability(), settings, bound.cost,
+                      target=bound.state, on_event=bump_while_planning)
+    assert bumped and report.converged
+    assert report.divergences[0].object_id == "platter_1"
+    assert report.divergences[0].reason == "moved although not pushed"
+    assert report.replans >= 1 and report.pushes >= 1
+    problem = PlanningProblem(at_optimum, store, AnnulusReachability())
+    true_state = np.array([robot.pusher.poses[o.id].as_array() for o in scenario.objects])
+    assert report.final_cost == pytest.approx(float(problem.objective.cost(true_state)))
+    # pushed back: less than half of what the bump cost (distance_to_point, weight 2, 3 cm)
+    assert report.final_cost - bound.cost < 0.5 * 2.0 * 0.03
 
 
 def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
