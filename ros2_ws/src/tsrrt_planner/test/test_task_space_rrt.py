@@ -20,6 +20,7 @@ from tsrrt_planner.task_space_rrt import (
     PlanStep,
     SoftDeadline,
     StallRule,
+    can_move,
     interchangeable_groups,
     match_to,
 )
@@ -250,6 +251,24 @@ def test_push_constraints_reject_unreachable_and_blocked_pushes(problem):
     assert problem.state_valid(state)
     assert problem.pushes_valid(state, np.array([0]), np.array([2]), np.array([0.002]))[0]
     assert not problem.pushes_valid(state, np.array([0]), np.array([2]), np.array([0.05]))[0]
+
+
+def test_an_object_wedged_at_the_near_edge_cannot_move(problem):
+    """plate_2 at the near edge in front of the base, the platter 6 mm beside it: the ball
+    can get neither behind it nor to its platter side (the reach, with its margin, starts at
+    x = 0.35 m there), ahead of it the push would leave the table, and the one push left
+    would bring it within the margin of the platter. Move the platter 3 cm away, or the plate
+    out from the edge, and it can move again."""
+    state = np.array([[0.57, 0.20, 0.0], [0.331, -0.02, 0.0], [0.40, -0.121, 0.0]])
+    assert problem.state_valid(state)
+    assert not can_move(problem, state, 1)
+    assert can_move(problem, state, 0) and can_move(problem, state, 2)
+    away = state.copy()
+    away[2, 1] -= 0.03
+    assert can_move(problem, away, 1)
+    out = state.copy()
+    out[1:, 0] += 0.12
+    assert can_move(problem, out, 1)
 
 
 @pytest.mark.parametrize("mode", MODES)
