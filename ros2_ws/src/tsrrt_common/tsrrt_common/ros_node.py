@@ -9,6 +9,7 @@ from __future__ import annotations
 import faulthandler
 import signal
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -32,6 +33,10 @@ from tsrrt_common.errors import TsrrtError
 # A node still shutting down this long after it began prints every thread's stack to stderr (its
 # log): a process that hangs on a signal is otherwise only a SIGKILL and a silent log.
 SHUTDOWN_REPORT_S = 10.0
+# rclpy shuts its context down on SIGINT/SIGTERM from a thread of its own, a moment after the
+# signal; a start that fails within this long of it (a helper process killed by the same signal
+# to the process group) is part of the shutdown, not a refusal.
+SIGNAL_SHUTDOWN_GRACE_S = 1.0
 HANDOFF_POLL_S = 0.1  # how often a spin waiting for a worker to start checks for shutdown
 # Longest wait asked of perception in one request for a settled observation. A service response
 # can be lost: rmw_fastrtps drops one sent before the server has matched a new client's reader
@@ -120,6 +125,16 @@ class HandoffExecutor(MultiThreadedExecutor):
                 future.result()  # raise any exception of the callback
 
 
+def _stays_up(seconds: float) -> bool:
+    """True when rclpy's context is still up `seconds` from now (False as soon as it is not)."""
+    deadline = time.monotonic() + seconds
+    while rclpy.ok():
+        if time.monotonic() >= deadline:
+            return True
+        time.sleep(0.01)
+    return False
+
+
 def run_node(make_node: Callable[[], Node], name: str, threads: int,
              args: list[str] | None = None) -> None:
     """Spin a node until SIGINT/SIGTERM; a bad file or parameter refuses to start (exit 1), a
@@ -142,7 +157,7 @@ def run_node(make_node: Callable[[], Node], name: str, threads: int,
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (TsrrtError, ParameterException) as error:
-        if rclpy.ok():      # else a signal stopped the start (e.g. killing a helper process)
+        if _stays_up(SIGNAL_SHUTDOWN_GRACE_S):   # else a signal stopped the start
             rclpy.logging.get_logger(name).fatal(f"cannot start: {error}")
             refused = True
     except rclpy_implementation.RCLError:
