@@ -66,3 +66,28 @@ def test_each_message_is_handed_to_a_worker_once(ros_env) -> None:
     assert sorted(received, key=int) == [str(i) for i in range(MESSAGES)]
     # One lookup per message, and a few for what else the executor was woken by (discovery).
     assert lookups <= MESSAGES + 10, f"{lookups} lookups for {MESSAGES} messages"
+
+
+class UnwokenExecutor(HandoffExecutor):
+    """Not woken when its context shuts down: as on a signal, when rclpy wakes the executor and
+    then shuts the context down from a thread of its own."""
+
+    def wake(self) -> None:
+        pass
+
+
+def test_spin_ends_when_the_context_shuts_down_without_waking_it(ros_env) -> None:
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = rclpy.create_node("handoff_unwoken", context=context)
+    executor = UnwokenExecutor(num_threads=2, context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    time.sleep(0.3)
+    rclpy.shutdown(context=context)
+    spinner.join(timeout=5.0)
+    stuck = spinner.is_alive()
+    executor.shutdown(timeout_sec=1.0)
+    node.destroy_node()
+    assert not stuck, "the executor went on waiting after its context shut down"

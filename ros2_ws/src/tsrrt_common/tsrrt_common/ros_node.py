@@ -38,6 +38,7 @@ SHUTDOWN_REPORT_S = 10.0
 # to the process group) is part of the shutdown, not a refusal.
 SIGNAL_SHUTDOWN_GRACE_S = 1.0
 HANDOFF_POLL_S = 0.1  # how often a spin waiting for a worker to start checks for shutdown
+SHUTDOWN_POLL_S = 0.5  # how often an idle spin wakes to check whether its context shut down
 # Longest wait asked of perception in one request for a settled observation. A service response
 # can be lost: rmw_fastrtps drops one sent before the server has matched a new client's reader
 # ("failed to send response (timeout)", seen after a perception restart), and the client then
@@ -99,6 +100,16 @@ class HandoffExecutor(MultiThreadedExecutor):
     built; here the spinning thread waits until each callback has started before it looks for
     more work.
     """
+
+    def spin(self) -> None:
+        """Execute callbacks until shutdown, waking every SHUTDOWN_POLL_S to check for it.
+
+        On SIGINT/SIGTERM rclpy triggers the executor's signal guard condition and then shuts
+        the context down from a thread of its own, without the wake-up a Python shutdown gives;
+        woken before the shutdown, a spin that waits without a timeout waited for good (a fresh
+        planner_node, SIGTERM, killed 15 s later in the soak of a fresh-clone CI run)."""
+        while self._context.ok() and not self._is_shutdown:
+            self.spin_once(timeout_sec=SHUTDOWN_POLL_S)
 
     def _spin_once_impl(self, timeout_sec: float | None = None,
                         wait_condition: Callable[[], bool] = lambda: False) -> None:
