@@ -661,10 +661,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 report.converged = True
                 report.stop_reason = "converged"
                 return report
-            report.divergences.extend(moved)
-            report.replans += 1
-            if report.replans > settings.max_replans:
-                report.stop_reason = "replan budget"
+            if not _replan_allowed(report, moved, settings):
                 return report
             observed = latest
             report.final_cost = float(problem.objective.cost(_state_of(problem, latest)))
@@ -694,11 +691,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 # Refused before anything moved (the object stands a few millimetres from where
                 # the plan put it, and from there the push leaves the arm's reach or meets
                 # another object), or stopped part-way: plan afresh from what is observed.
-                report.divergences.append(Divergence(step.object_id, 0.0, 0.0,
-                                                     f"push refused: {failure}"))
-                report.replans += 1
-                if report.replans > settings.max_replans:
-                    report.stop_reason = "replan budget"
+                refused = Divergence(step.object_id, 0.0, 0.0, f"push refused: {failure}")
+                if not _replan_allowed(report, [refused], settings):
                     return report
                 replaced = (result, k + 1)
                 observed = environment.observe()
@@ -723,14 +717,22 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                          for i, o in enumerate(scenario.objects)}
             divergences = tracker.diverged(predicted, observed)
             if divergences:
-                report.divergences.extend(divergences)
-                report.replans += 1
-                if report.replans > settings.max_replans:
-                    report.stop_reason = "replan budget"
+                if not _replan_allowed(report, divergences, settings):
                     return report
                 replaced = (result, k + 1)
                 on_event("replanning", report)
                 break
+
+
+def _replan_allowed(report: TaskReport, why: list[Divergence], settings: TaskSettings) -> bool:
+    """Record why the task replans and count the replan; False (the stop reason set) once
+    that spends more than the replan budget."""
+    report.divergences.extend(why)
+    report.replans += 1
+    if report.replans > settings.max_replans:
+        report.stop_reason = "replan budget"
+        return False
+    return True
 
 
 def steps_worth_executing(costs: np.ndarray, settings: TaskSettings,
