@@ -22,7 +22,9 @@ from tsrrt_planner.task_space_rrt import (
     StallRule,
     can_move,
     interchangeable_groups,
+    lost_turn,
     match_to,
+    polish_push,
 )
 
 
@@ -269,6 +271,49 @@ def test_an_object_wedged_at_the_near_edge_cannot_move(problem):
     out = state.copy()
     out[1:, 0] += 0.12
     assert can_move(problem, out, 1)
+
+
+@pytest.fixture(scope="module")
+def clean() -> PlanningProblem:
+    scenario = load_scenario("clean")
+    return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+
+
+def test_a_box_beside_a_neighbour_cannot_turn(clean):
+    """clean's eraser 10 degrees off, 4 mm beside the remote: the ball fits on neither long
+    face's side that would turn it back, so the turn is lost; 11 cm further out it is not."""
+    grid = np.geomspace(clean.min_length, clean.max_length, 10)
+    beside = np.array([[0.448, -0.084, math.pi], [0.449, 0.005, -0.019],
+                       [0.456, 0.066, -0.167]])
+    assert clean.state_valid(beside)
+    assert lost_turn(clean, beside, 2, grid) > 0.0
+    away = beside.copy()
+    away[2, 1] += 0.11
+    assert lost_turn(clean, away, 2, grid) == 0.0
+    plates = load_scenario("tset3")
+    discs = PlanningProblem(plates, learn_all(plates.objects, seed=0))
+    assert lost_turn(discs, discs.start, 0, grid) == 0.0   # a disc has no heading to lose
+
+
+def test_polishing_turns_a_box_before_pushing_it_in_beside_a_neighbour(clean):
+    """Pushing the eraser in towards the remote lowers the cost most, but leaves it unable to
+    turn by more than that push gains: polishing turns it first."""
+    grid = np.geomspace(clean.min_length, clean.max_length, 10)
+    state = np.array([[0.448, -0.084, math.pi], [0.449, 0.005, -0.019],
+                      [0.456, 0.116, -0.3]])
+    objects = np.repeat(clean.action_objects, len(grid))
+    primitives = np.repeat(clean.action_primitives, len(grid))
+    lengths = np.tile(grid, len(clean.action_objects))
+    valid = clean.pushes_valid(state, objects, primitives, lengths)
+    after = [clean.apply(state, int(o), int(p), float(length)) for o, p, length
+             in zip(objects[valid], primitives[valid], lengths[valid], strict=True)]
+    greedy = int(np.argmin(clean.objective.cost(np.array(after))))
+    assert (objects[valid][greedy], primitives[valid][greedy]) == (2, 4)
+    gain = clean.objective.cost(state) - clean.objective.cost(after[greedy])
+    assert lost_turn(clean, after[greedy], 2, grid) > gain
+    push = polish_push(clean, state, grid)
+    assert push is not None and push[:2] == (2, 5)
+    assert clean.objective.cost(clean.apply(state, *push)) < clean.objective.cost(state)
 
 
 @pytest.mark.parametrize("mode", MODES)
