@@ -901,13 +901,8 @@ def polish_push(problem: PlanningProblem, state: np.ndarray, grid: np.ndarray) -
     heading got pushed in beside a neighbour before it was turned, and then the ball no longer
     fitted between them to turn it: clean's eraser stayed 10 degrees off beside the remote,
     21 % above the bound (seed 0 of 20 at 250 nodes)."""
-    k, g = len(problem.action_objects), len(grid)
-    objects = np.repeat(problem.action_objects, g)
-    primitives = np.repeat(problem.action_primitives, g)
-    lengths = np.tile(grid, k)
-    candidates = np.repeat(state[None], k * g, axis=0)
-    candidates[np.arange(k * g), objects] = problem.predict(state, objects, primitives, lengths)
-    costs = problem.objective.cost(candidates)
+    objects, primitives, lengths, candidates, costs = line_search_pushes(
+        problem, state, problem.action_objects, problem.action_primitives, grid)
     cost = float(problem.objective.cost(state))
     order = np.argsort(costs, kind="stable")
     order = order[costs[order] < cost - 1e-10]
@@ -926,6 +921,21 @@ def polish_push(problem: PlanningProblem, state: np.ndarray, grid: np.ndarray) -
     return None
 
 
+def line_search_pushes(problem: PlanningProblem, state: np.ndarray, objects: np.ndarray,
+                       primitives: np.ndarray, grid: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each (object, primitive) push (k,) at every length of `grid` (g,), from `state`: the
+    pushes' objects, primitives and lengths (k * g,), the states they predict (k * g, n, 3) and
+    those states' costs, not yet checked for validity."""
+    g = len(grid)
+    objects, primitives = np.repeat(objects, g), np.repeat(primitives, g)
+    lengths = np.tile(grid, len(objects) // g)
+    candidates = np.repeat(state[None], len(objects), axis=0)
+    candidates[np.arange(len(objects)), objects] = problem.predict(state, objects, primitives,
+                                                                   lengths)
+    return objects, primitives, lengths, candidates, problem.objective.cost(candidates)
+
+
 def lost_turn(problem: PlanningProblem, state: np.ndarray, index: int,
               grid: np.ndarray) -> float:
     """What box `index` loses by being unable to turn in `state`: the cost gain of its best
@@ -935,13 +945,9 @@ def lost_turn(problem: PlanningProblem, state: np.ndarray, index: int,
         problem.action_objects == index)
     if not turns.any():
         return 0.0
-    g = len(grid)
-    primitives = np.repeat(problem.action_primitives[turns], g)
-    objects = np.full(len(primitives), index)
-    lengths = np.tile(grid, int(turns.sum()))
-    candidates = np.repeat(state[None], len(primitives), axis=0)
-    candidates[:, index] = problem.predict(state, objects, primitives, lengths)
-    gain = problem.objective.cost(state) - problem.objective.cost(candidates)
+    objects, primitives, lengths, candidates, costs = line_search_pushes(
+        problem, state, problem.action_objects[turns], problem.action_primitives[turns], grid)
+    gain = problem.objective.cost(state) - costs
     best = int(np.argmax(gain))
     turn = abs(math.remainder(candidates[best, index, 2] - state[index, 2], 2 * math.pi))
     if gain[best] <= 0 or problem.objects.half_length[index] * turn < STUCK_TURN:
