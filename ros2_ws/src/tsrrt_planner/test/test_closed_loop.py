@@ -24,12 +24,15 @@ from tsrrt_planner.closed_loop import (
     scenario_at,
     update_model_with_push,
 )
+from tsrrt_planner.errors import ModelError
 from tsrrt_planner.lower_bound import lower_bound
 from tsrrt_planner.model_learning import (
     ConfidenceStoppingRule,
     DisplacementStats,
     ForwardModel,
+    MirrorCheck,
     ModelStore,
+    mirrored,
 )
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import SimulatedPusher, learn_all
@@ -223,6 +226,75 @@ def test_learning_continues_from_prior_statistics() -> None:
                            prior=first.statistics)
     assert again.trials == 0 and again.converged
     assert again.models[1].count == first.models[1].count
+
+
+def _table_executor(displacements: dict[int, list[float]], pushes: list[int]):
+    """Pushes the eraser by a fixed displacement per primitive, with a small scatter (so the
+    confidence rule has spread to judge), recording the primitives it was asked for."""
+    poses = {"eraser": load_scenario("clean").object("eraser").pose}
+
+    def execute(object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        pushes.append(primitive)
+        scatter = 0.0005 * (-1) ** len(pushes)
+        delta = np.array(displacements[primitive]) * push_length / 0.05 + scatter
+        before = poses[object_id]
+        poses[object_id] = before.apply_displacement(delta)
+        return PushOutcome(before, poses[object_id])
+    return execute, poses
+
+
+SYMMETRIC = {1: [0.05, 0.001, 0.01], 2: [-0.05, 0.001, -0.01],
+             3: [0.0, 0.05, -0.01], 4: [0.0, -0.05, 0.01],
+             5: [-0.005, 0.02, 0.5], 6: [-0.005, -0.02, -0.5]}
+
+
+def test_the_mirror_check_learns_each_second_primitive_from_one_confirming_trial() -> None:
+    spec = load_scenario("clean").object("eraser")
+    pushes: list[int] = []
+    execute, poses = _table_executor(SYMMETRIC, pushes)
+    rule = ConfidenceStoppingRule(0.004, 0.035)
+    result = learn_in_place(spec, poses["eraser"], execute, rule, mirror=MirrorCheck())
+    assert result.converged
+    assert sorted(pushes) == [1, 1, 1, 2, 3, 3, 3, 4, 5, 5, 5, 6]
+    assert all(result.models[p].count == 1 for p in (2, 4, 6))
+    # The second of each pair is planned with its partner's mirror image until it has its own.
+    store = ModelStore(result.models.values(), {"eraser": "eraser"})
+    planned = store.model_for("eraser", "eraser", 4)
+    assert planned.count == 3
+    np.testing.assert_allclose(planned.mean, mirrored(result.models[3], 4).mean)
+    # Without the check every primitive has its own rule's trials.
+    pushes.clear()
+    execute, poses = _table_executor(SYMMETRIC, pushes)
+    assert learn_in_place(spec, poses["eraser"], execute, rule).converged
+    assert len(pushes) == 18
+
+
+def test_a_trial_that_does_not_mirror_its_partner_is_learned_in_full() -> None:
+    spec = load_scenario("clean").object("eraser")
+    lopsided = {**SYMMETRIC, 4: [0.0, -0.05, -0.04]}  # turns 2.3 deg the wrong way
+    pushes: list[int] = []
+    execute, poses = _table_executor(lopsided, pushes)
+    rule = ConfidenceStoppingRule(0.004, 0.035)
+    result = learn_in_place(spec, poses["eraser"], execute, rule, mirror=MirrorCheck())
+    assert result.converged
+    assert pushes.count(4) == 3 and pushes.count(2) == pushes.count(6) == 1
+    np.testing.assert_allclose(result.models[4].mean[2], -0.04, atol=0.001)
+
+
+def test_the_mirror_check_needs_a_partner_that_is_learned() -> None:
+    rule = ConfidenceStoppingRule(0.004, 0.035)
+    check = MirrorCheck()
+    partner = DisplacementStats()
+    own = DisplacementStats()
+    own.update(np.array([-0.05, 0.001, -0.01]))
+    for delta in ([0.05, 0.001, 0.01], [0.0501, 0.0012, 0.011]):
+        partner.update(np.array(delta))
+    assert not check.confirmed(2, {1: partner, 2: own}, rule)  # two trials: rule not met
+    partner.update(np.array([0.0499, 0.0008, 0.009]))
+    assert check.confirmed(2, {1: partner, 2: own}, rule)
+    assert not check.confirmed(2, {1: partner, 2: DisplacementStats()}, rule)
+    with pytest.raises(ModelError, match="tolerances must be > 0"):
+        MirrorCheck(position_tolerance=0.0)
 
 
 def test_other_execution_failures_propagate() -> None:

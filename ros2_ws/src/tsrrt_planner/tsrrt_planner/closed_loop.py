@@ -14,6 +14,8 @@ Two decisions the paper leaves open, made here (repeated in docs/planner.md):
   leaving the most room. When none of those is possible, the push of any primitive that most
   increases the room repositions the object (it is a trial too). Every push updates its own
   primitive's distribution exactly as Eq. 9 says; only the choice of trials differs from Fig. 2.
+  With a MirrorCheck the second primitive of each mirror pair (2, 4, 6) waits for the first and is
+  done after one trial that agrees with the first's mirrored mean.
 * Convergence: the task is done when a fresh plan from the observed state predicts less than
   `convergence` relative improvement, or when pushes, time or cancellation end it first.
   Of a plan that ends in a detour (from its best state before the climb it climbs more than
@@ -74,8 +76,10 @@ from tsrrt_planner.model_learning import (
     MIRROR_PARTNER,
     DisplacementStats,
     ForwardModel,
+    MirrorCheck,
     ModelStore,
     StoppingRule,
+    learned,
 )
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import plausible_displacement, transfer_efficiency
@@ -264,7 +268,8 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
                    on_trial: Callable[[LearningProgress], None] | None = None,
                    cancelled: Callable[[], bool] = lambda: False,
                    prior: Mapping[int, DisplacementStats] | None = None,
-                   area: LearningArea | None = None) -> LearningResult:
+                   area: LearningArea | None = None,
+                   mirror: MirrorCheck | None = None) -> LearningResult:
     """LEARN_MODEL (Fig. 2) for one object, trials chosen so the object stays in the workspace.
 
     Args:
@@ -278,6 +283,9 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
         cancelled: polled between pushes.
         prior: statistics learned earlier (e.g. loaded from disk) that trials add to.
         area: where the object may be pushed (None: anywhere).
+        mirror: learn the second primitive of a mirror pair from the first's trials and its
+            own confirming trial (MirrorCheck; None: every primitive by its rule). The first
+            of a pair (1, 3, 5) then gets its trials before the second.
 
     Returns:
         Models of every primitive tried, the trial count, the last pose, whether every rule
@@ -292,14 +300,22 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
     reasons: dict[int, str] = {}   # primitive -> why it was last left out
     trials = 0
 
+    def done(p: int) -> bool:
+        return learned(p, statistics, rule, mirror)
+
+    def waits_for_partner(p: int) -> bool:
+        """The second of a mirror pair waits while the first may still settle it."""
+        partner = MIRROR_PARTNER[p][0]
+        return mirror is not None and p > partner and not done(partner)
+
     def result(converged: bool) -> LearningResult:
         skipped = [f"primitive {p}: {reasons[p]}" for p in primitives
-                   if p in reasons and not rule.done(statistics[p])]
+                   if p in reasons and not done(p)]
         return LearningResult(_models(spec, statistics, push_length), trials, pose, converged,
                               statistics, skipped)
 
     while trials < max_rounds * len(primitives):
-        pending = [p for p in primitives if not rule.done(statistics[p])]
+        pending = [p for p in primitives if not done(p)]
         if not pending:
             return result(True)
         if cancelled():
@@ -322,7 +338,9 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
                     reasons[p] = f"from ({pose.x:.3f}, {pose.y:.3f}) it {problem}"
         learning = [p for p in pending if p in options]
         if learning:
-            primitive = min(learning, key=lambda p: (statistics[p].count, -options[p][1]))
+            primitive = min(learning, key=lambda p: (
+                statistics[p].count + (rule.min_trials - 1) * waits_for_partner(p),
+                -options[p][1]))
         else:
             room_now = area.room(spec, pose) if area is not None else 0.0
             better = [p for p in options if options[p][1] > room_now + REPOSITION_GAIN]
@@ -345,7 +363,7 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
         if on_trial is not None:
             on_trial(LearningProgress(spec.id, primitive, trials,
                                       np.sqrt(statistics[primitive].variance)))
-    return result(all(rule.done(statistics[p]) for p in primitives))
+    return result(all(done(p) for p in primitives))
 
 
 def _models(spec: ObjectSpec, statistics: Mapping[int, DisplacementStats],

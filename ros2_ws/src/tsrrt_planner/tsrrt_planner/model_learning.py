@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -108,6 +108,8 @@ class DisplacementStats:
 
 class StoppingRule(Protocol):
     """Decides when LEARN_MODEL has tried a primitive often enough."""
+
+    min_trials: int
 
     def done(self, statistics: DisplacementStats) -> bool: ...
 
@@ -234,20 +236,68 @@ def LEARN_MODEL(object_id: str, primitives: Sequence[int], s_init: Pose2D,
 MIRROR_PARTNER = {1: (2, 1), 2: (1, 1), 3: (4, 0), 4: (3, 0), 5: (6, 0), 6: (5, 0)}
 
 
-def mirrored(model: ForwardModel, primitive: int) -> ForwardModel:
-    """`model` of the partner of `primitive` reflected into a model of `primitive`.
+def mirror_flip(primitive: int) -> np.ndarray:
+    """Signs (3,) that reflect a displacement of the partner of `primitive` into one of it.
 
     A push mirrored across an axis of a symmetric object moves it the mirrored way: across the
     y axis (dx, dy, dtheta) becomes (-dx, dy, -dtheta), across the x axis (dx, -dy, -dtheta).
+    """
+    return np.array([-1.0, 1.0, -1.0]) if MIRROR_PARTNER[primitive][1] == 1 else np.array(
+        [1.0, -1.0, -1.0])
+
+
+def mirrored(model: ForwardModel, primitive: int) -> ForwardModel:
+    """`model` of the partner of `primitive` reflected into a model of `primitive` (mirror_flip).
     The spread is the same; the count stays the partner's trials (none are this primitive's).
     """
-    partner, axis = MIRROR_PARTNER[primitive]
+    partner = MIRROR_PARTNER[primitive][0]
     if model.primitive != partner:
         raise ModelError(f"primitive {primitive} mirrors primitive {partner}, not "
                          f"{model.primitive}")
-    flip = np.array([-1.0, 1.0, -1.0]) if axis == 1 else np.array([1.0, -1.0, -1.0])
     return ForwardModel(model.object_id, primitive, model.push_length, model.count,
-                        model.mean * flip, model.m2.copy())
+                        model.mean * mirror_flip(primitive), model.m2.copy())
+
+
+@dataclass(frozen=True)
+class MirrorCheck:
+    """Learn a primitive from its mirror partner's trials and one of its own that confirms them.
+
+    The objects are symmetric and of uniform density, so trying both primitives of a mirror pair
+    (MIRROR_PARTNER) until each rule holds learns the same displacement twice: 30 s of a clean
+    demo's 110 s were learning. A primitive counts as learned once its partner's stopping rule
+    holds and the mean of its own trials (a single one will do) lies within these tolerances of
+    the partner's mirrored mean. It is planned with the mirrored model (ModelStore.model_for)
+    until its own executed pushes take over; a trial that disagrees (the arm or the contact is
+    not symmetric after all) leaves it to be learned in full.
+    """
+
+    position_tolerance: float = 0.004
+    angle_tolerance: float = 2.0 * DEGREE
+
+    def __post_init__(self) -> None:
+        if not (self.position_tolerance > 0 and self.angle_tolerance > 0):
+            raise ModelError("mirror check tolerances must be > 0")
+
+    def confirmed(self, primitive: int, statistics: Mapping[int, DisplacementStats],
+                  rule: StoppingRule) -> bool:
+        """Whether `primitive`'s own trials confirm its partner's mirrored mean."""
+        own = statistics.get(primitive)
+        source = statistics.get(MIRROR_PARTNER[primitive][0])
+        if own is None or own.count == 0 or source is None or source.count < 2 or not rule.done(
+                source):
+            return False
+        error = np.abs(own.mean - source.mean * mirror_flip(primitive))
+        return bool(np.all(error <= [self.position_tolerance, self.position_tolerance,
+                                     self.angle_tolerance]))
+
+
+def learned(primitive: int, statistics: Mapping[int, DisplacementStats], rule: StoppingRule,
+            mirror: MirrorCheck | None = None) -> bool:
+    """Whether `primitive` needs no more trials: its own rule holds, or `mirror` confirms it."""
+    own = statistics.get(primitive)
+    if own is not None and rule.done(own):
+        return True
+    return mirror is not None and mirror.confirmed(primitive, statistics, rule)
 
 
 class ModelStore:

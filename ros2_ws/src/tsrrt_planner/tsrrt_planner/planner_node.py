@@ -74,9 +74,11 @@ from tsrrt_planner.lower_bound import LowerBound, lower_bound, relative_gap
 from tsrrt_planner.model_learning import (
     ConfidenceStoppingRule,
     DisplacementStats,
+    MirrorCheck,
     ModelStore,
     PaperStoppingRule,
     StoppingRule,
+    learned,
 )
 from tsrrt_planner.objectives import build_objective
 from tsrrt_planner.problem import PlanningProblem, out_of_reach
@@ -260,6 +262,9 @@ class PlannerNode(Node):
                                                     "confidence rule: half-width, m"))
         declare("angle_tolerance", 0.035, _float(1e-4, 1.0,
                                                  "confidence rule: half-width, rad"))
+        declare("mirror_check", True, ParameterDescriptor(
+            description="learn the second primitive of a mirror pair (2, 4, 6) from the first's "
+                        "trials plus one of its own within position/angle_tolerance of them"))
         declare("learning_edge_margin", 0.005, _float(0.0, 0.2,
                 "closest a learning push may bring an object to the table edge, m"))
         declare("learning_clearance", 0.01, _float(0.0, 0.2,
@@ -332,29 +337,36 @@ class PlannerNode(Node):
         raise GoalFailed("INVALID_GOAL",
                          f"unknown stopping rule {name!r}; known: 'confidence', 'variance'")
 
+    def _mirror_check(self) -> MirrorCheck | None:
+        if not self._param("mirror_check"):
+            return None
+        return MirrorCheck(self._param("position_tolerance"), self._param("angle_tolerance"))
+
+    def _statistics(self, object_id: str) -> dict[int, DisplacementStats]:
+        """What the store holds of the object's primitives, as learning statistics."""
+        return {p: DisplacementStats(m.count, m.mean.copy(), m.m2.copy())
+                for (o, p), m in self.store.models.items() if o == object_id}
+
     def _needs_learning(self, object_id: str, shape_primitives: tuple[int, ...],
                         rule: StoppingRule) -> bool:
-        for primitive in shape_primitives:
-            model = self.store.models.get((object_id, primitive))
-            if model is None or self.store.classes.get(object_id) != self.scenario.object(
-                    object_id).object_class:
-                return True
-            if not rule.done(DisplacementStats(model.count, model.mean.copy(),
-                                               model.m2.copy())):
-                return True
-        return False
+        if self.store.classes.get(object_id) != self.scenario.object(object_id).object_class:
+            return True
+        statistics = self._statistics(object_id)
+        mirror = self._mirror_check()
+        return not all(learned(p, statistics, rule, mirror) for p in shape_primitives)
 
     def _models_message(self) -> ForwardModelArray:
-        rule = self._stopping_rule("", 0)
+        rule, mirror = self._stopping_rule("", 0), self._mirror_check()
         message = ForwardModelArray()
         message.header.stamp = self.get_clock().now().to_msg()
         for (object_id, primitive), model in sorted(self.store.models.items()):
-            statistics = DisplacementStats(model.count, model.mean.copy(), model.m2.copy())
+            statistics = self._statistics(object_id)
             message.models.append(ForwardModelMsg(
                 object_id=object_id, object_class=self.store.classes.get(object_id, ""),
                 primitive=primitive, nominal_push_length=float(model.push_length),
                 samples=int(model.count), mean=[float(v) for v in model.mean],
-                variance=[float(v) for v in model.variance], converged=rule.done(statistics)))
+                variance=[float(v) for v in model.variance],
+                converged=learned(primitive, statistics, rule, mirror)))
         return message
 
     def _publish_models(self) -> None:
@@ -512,22 +524,21 @@ class PlannerNode(Node):
                 clearance=self._param("learning_clearance"), reach=self.reachability)
             self.get_logger().info(f"learning push models of {object_id}")
             done_before = trials
-            prior = {p: DisplacementStats(m.count, m.mean.copy(), m.m2.copy())
-                     for (o, p), m in self.store.models.items() if o == object_id}
-            learned = learn_in_place(
+            outcome = learn_in_place(
                 spec, pose, environment.execute, rule,
                 on_trial=lambda progress, before=done_before: on_trial(
                     progress, before + progress.trials),
-                cancelled=cancelled, prior=prior, area=area)
-            for reason in learned.skipped:
+                cancelled=cancelled, prior=self._statistics(object_id), area=area,
+                mirror=self._mirror_check())
+            for reason in outcome.skipped:
                 self.get_logger().warning(f"{object_id}: could not learn {reason}")
-            trials += learned.trials
-            for model in learned.models.values():
+            trials += outcome.trials
+            for model in outcome.models.values():
                 self.store.add(model, spec.object_class)
             self._save_models()
             if cancelled():
                 raise GoalFailed("CANCELED", "cancelled while learning")
-            if not learned.converged:
+            if not outcome.converged:
                 self.get_logger().warning(f"{object_id}: models did not converge within the "
                                           "trial limit; planning with them anyway")
         return trials
