@@ -10,6 +10,13 @@ nodes per second, pushes in the returned plan. Against a zero optimum (the obsta
 relative gap means nothing: gaps are n/a (null in the JSON) and the cost tells how close it got.
 The JSON holds `lower_bound` and one `results` entry per planner and seed. Forward models come
 from data/models/<scenario name>.yaml unless --models is given.
+
+`--start-jitter DXY,DTHETA` plans each seed from the scenario's start with every object moved by a
+seeded uniform offset within +-DXY metres and +-DTHETA radians (drawn again until the start is
+valid), the same start for every planner of a seed. The closed loop plans from wherever learning
+left the objects, a few centimetres from the scenario's start, and the planners' gaps from such
+starts differ from the one start the scenario file names. The lower bound and target stay the
+scenario's, as in the planner node.
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import statistics  # noqa: E402
@@ -29,6 +37,9 @@ from importlib import resources  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
+import numpy as np  # noqa: E402
+
+from tsrrt_common.geometry import Pose2D  # noqa: E402
 from tsrrt_common.scenario import Scenario, load_scenario  # noqa: E402
 from tsrrt_planner.errors import PlannerError  # noqa: E402
 from tsrrt_planner.lower_bound import lower_bound  # noqa: E402
@@ -56,6 +67,29 @@ def default_models(scenario: Scenario) -> Path:
                            f"with `python -m tsrrt_planner.push_rule --scenario ... --out {path}`"
                            " or pass --models")
     return path
+
+
+JITTER_DRAWS = 200  # draws of a jittered start before giving up
+
+
+def jittered_problem(scenario: Scenario, models: ModelStore, jitter: tuple[float, float],
+                     seed: int) -> PlanningProblem:
+    """The problem from the scenario's start with every object moved by a uniform offset within
+    +-jitter[0] m and +-jitter[1] rad, drawn with `seed` until the start is valid."""
+    rng = np.random.default_rng(seed)
+    xy, theta = jitter
+    for _ in range(JITTER_DRAWS):
+        objects = tuple(dataclasses.replace(o, pose=Pose2D(
+            o.pose.x + rng.uniform(-xy, xy), o.pose.y + rng.uniform(-xy, xy),
+            o.pose.theta + rng.uniform(-theta, theta))) for o in scenario.objects)
+        try:
+            problem = PlanningProblem(dataclasses.replace(scenario, objects=objects), models)
+        except PlannerError:
+            continue
+        if problem.state_valid(problem.start):
+            return problem
+    raise PlannerError(f"{scenario.name}: no valid start within +-{xy} m, +-{theta} rad of the "
+                       f"scenario's in {JITTER_DRAWS} draws (seed {seed})")
 
 
 def time_and_nodes_to(result: PlanResult, gap: float) -> tuple[float | None, int | None]:
@@ -144,6 +178,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--models", type=Path, help="model file (default: shipped for scenario)")
     parser.add_argument("--json", type=Path, help="write the results here")
     parser.add_argument("--lb-starts", type=int, default=16)
+    parser.add_argument("--start-jitter", metavar="DXY,DTHETA",
+                        help="plan each seed from a start this far (m, rad) from the scenario's")
     args = parser.parse_args(argv)
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
     unknown = [p for p in planners if p not in MODES + OMPL_PLANNERS]
@@ -151,6 +187,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         parser.error(f"unknown planners {unknown}; known: {list(MODES + OMPL_PLANNERS)}")
     if args.seeds < 1 or not args.budget_s > 0:
         parser.error("--seeds must be >= 1 and --budget-s > 0")
+    jitter = None
+    if args.start_jitter is not None:
+        try:
+            jitter = tuple(float(v) for v in args.start_jitter.split(","))
+        except ValueError:
+            jitter = ()
+        if len(jitter) != 2 or not all(math.isfinite(v) and v >= 0 for v in jitter):
+            parser.error(f"--start-jitter needs two numbers >= 0 (metres,radians), got "
+                         f"{args.start_jitter!r}")
     scenario = resolve_scenario(args.scenario)
     models = ModelStore.load(args.models or default_models(scenario))
     problem = PlanningProblem(scenario, models)
@@ -159,16 +204,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     print(f"scenario {scenario.name}: {problem.n} objects ({3 * problem.n} DOF), start cost "
           f"{start_cost:.4f}, lower bound {bound.cost:.4f} ({bound.feasible_starts}/"
           f"{bound.starts} feasible starts, {bound.seconds:.1f} s); budget {args.budget_s} s, "
-          f"{args.seeds} seeds", flush=True)
+          f"{args.seeds} seeds" + ("" if jitter is None else
+                                  f", starts jittered by +-{jitter[0]} m, +-{jitter[1]} rad"),
+          flush=True)
+    starts = [problem if jitter is None else jittered_problem(scenario, models, jitter, seed)
+              for seed in range(args.seeds)]
     rows, skipped = [], []
     for planner in planners:
         for seed in range(args.seeds):
             try:
-                result = run_planner(problem, planner, seed, args.budget_s, bound)
+                result = run_planner(starts[seed], planner, seed, args.budget_s, bound)
             except PlannerError as error:
                 skipped.append(f"{planner}: {error}")
                 break
             rows.append(summarise(result))
+            rows[-1]["start_cost"] = float(result.costs[0])
             gap = rows[-1]["gap_final"]
             print(f"  {planner} seed {seed}: cost {rows[-1]['final_cost']:.4f}"
                   + ("" if gap is None else f", gap {gap:.2%}")
@@ -180,6 +230,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({
             "scenario": scenario.name, "budget_s": args.budget_s, "seeds": args.seeds,
+            "start_jitter": None if jitter is None else list(jitter),
             "lower_bound": bound.cost, "start_cost": start_cost, "not_run": skipped,
             "results": rows}, indent=2))
 

@@ -1,0 +1,57 @@
+"""The benchmark's jittered starts: seeded, valid, within the jitter, shared by the planners."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tsrrt_planner.bench import default_models, jittered_problem, main, resolve_scenario
+from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.model_learning import ModelStore
+
+
+@pytest.fixture(scope="module")
+def tset3():
+    scenario = resolve_scenario("tset3")
+    return scenario, ModelStore.load(default_models(scenario))
+
+
+def test_a_jittered_start_is_valid_within_the_jitter_and_the_same_for_a_seed(tset3) -> None:
+    scenario, models = tset3
+    original = np.array([o.pose.as_array() for o in scenario.objects])
+    problem = jittered_problem(scenario, models, (0.02, 0.2), seed=3)
+    assert problem.state_valid(problem.start)
+    offset = problem.start - original
+    assert np.abs(offset[:, :2]).max() <= 0.02 and np.abs(offset[:, 2]).max() <= 0.2
+    assert np.abs(offset).max() > 0.0
+    np.testing.assert_array_equal(
+        jittered_problem(scenario, models, (0.02, 0.2), seed=3).start, problem.start)
+    assert not np.array_equal(jittered_problem(scenario, models, (0.02, 0.2), seed=4).start,
+                              problem.start)
+
+
+def test_a_jitter_that_leaves_no_valid_start_is_an_error(tset3) -> None:
+    scenario, models = tset3
+    with pytest.raises(PlannerError, match="no valid start within"):
+        jittered_problem(scenario, models, (1.0, 0.0), seed=0)
+
+
+def test_the_bench_plans_every_planner_from_the_seed_s_jittered_start(tmp_path) -> None:
+    out = tmp_path / "bench.json"
+    main(["--scenario", "tset3", "--planners", "tsrrt,greedy", "--seeds", "2",
+          "--budget-s", "0.3", "--lb-starts", "2", "--start-jitter", "0.02,0.2",
+          "--json", str(out)])
+    report = json.loads(out.read_text())
+    assert report["start_jitter"] == [0.02, 0.2]
+    starts = {(r["planner"], r["seed"]): r["start_cost"] for r in report["results"]}
+    for seed in (0, 1):
+        assert starts[("tsrrt", seed)] == starts[("greedy", seed)] != report["start_cost"]
+    assert starts[("tsrrt", 0)] != starts[("tsrrt", 1)]
+
+
+@pytest.mark.parametrize("value", ["0.02", "a,b", "0.02,-0.1", "nan,0.1"])
+def test_a_malformed_jitter_is_refused(value: str) -> None:
+    with pytest.raises(SystemExit):
+        main(["--scenario", "tset3", "--start-jitter", value])
