@@ -63,10 +63,19 @@ class ExecutorProbe:
 
     def run(self, object_id: str, primitive: int, push_length: float = 0.0,
             feedback: list | None = None):
-        """Execute one primitive; returns the result wrapper (status and result)."""
+        """Execute one primitive; returns the result wrapper (status and result).
+
+        Feedback and the result travel on separate topics with no order between them: under
+        load (CI with a benchmark beside it) the settling feedback arrived after the result and
+        the phase check failed, so a successful goal waits up to 2 s for its last feedback."""
         goal = ExecutePrimitive.Goal(object_id=object_id, primitive=primitive,
                                      push_length=push_length)
-        return self.probe.execute(self.action, goal, feedback, timeout=120.0)
+        outcome = self.probe.execute(self.action, goal, feedback, timeout=120.0)
+        if feedback is not None and outcome.result.error_code == Result.SUCCESS:
+            self.probe.spin_until(lambda: any(
+                m.feedback.phase == Feedback.PHASE_SETTLING and m.feedback.progress >= 1.0
+                for m in feedback), 2.0)
+        return outcome
 
     def tracked(self, object_class: str, x: float, y: float, timeout: float = 60.0
                 ) -> ObjectState:
