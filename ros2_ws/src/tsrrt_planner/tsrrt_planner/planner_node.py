@@ -357,16 +357,17 @@ class PlannerNode(Node):
 
     def _models_message(self) -> ForwardModelArray:
         rule, mirror = self._stopping_rule("", 0), self._mirror_check()
+        statistics = {object_id: self._statistics(object_id)
+                      for object_id, _ in self.store.models}
         message = ForwardModelArray()
         message.header.stamp = self.get_clock().now().to_msg()
         for (object_id, primitive), model in sorted(self.store.models.items()):
-            statistics = self._statistics(object_id)
             message.models.append(ForwardModelMsg(
                 object_id=object_id, object_class=self.store.classes.get(object_id, ""),
                 primitive=primitive, nominal_push_length=float(model.push_length),
                 samples=int(model.count), mean=[float(v) for v in model.mean],
                 variance=[float(v) for v in model.variance],
-                converged=learned(primitive, statistics, rule, mirror)))
+                converged=learned(primitive, statistics[object_id], rule, mirror)))
         return message
 
     def _publish_models(self) -> None:
