@@ -78,6 +78,19 @@ def test_objects_keep_file_order_and_class_properties() -> None:
     assert math.isclose(plate.length, plate.width)
 
 
+def test_a_disc_gets_heading_zero_and_a_box_keeps_its_own() -> None:
+    """A disc has no visible heading, so its pushes go along the table's axes (scenario._heading);
+    the random heading is still drawn for it, so the other objects' placements stay put."""
+    scenario = parse_scenario(_with("objects.1.pose", [0.50, 0.10, 1.2]), "unit.yaml")
+    assert scenario.object("b").pose.theta == 0.0
+    assert load_scenario("tset6").object("plate_1").pose.theta == 0.0
+    boxed = parse_scenario(_with("objects.0.pose", [0.40, -0.10, 0.7]), "unit.yaml")
+    assert boxed.object("a").pose.theta == 0.7
+    platters = [load_scenario("tset6").object(f"platter_{k}").pose for k in (1, 2)]
+    assert [v for p in platters for v in (p.x, p.y, p.theta)] == pytest.approx(
+        [0.4917, -0.1085, -1.6281, 0.3532, -0.1126, 1.4952], abs=1e-4)  # as before discs
+
+
 def test_obstacles_are_static_and_separate_from_objects() -> None:
     scenario = load_scenario("obstacle")
     assert [o.id for o in scenario.obstacles] == ["hole_punch"]
