@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from tsrrt_common.scenario import load_scenario
+from tsrrt_planner.bench import default_models
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap, swap_refine
+from tsrrt_planner.model_learning import ModelStore
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
@@ -235,6 +237,24 @@ def test_matching_permutes_only_interchangeable_objects(problem):
     assert [list(g) for g in groups] == [[0, 1]]  # the two plates
     target = problem.start[[1, 0, 2]]
     np.testing.assert_array_equal(match_to(groups, target, problem.start), problem.start)
+
+
+def test_a_disc_is_pushed_along_the_table_axes_and_never_turns():
+    """Perception keeps a disc at heading 0, so the plan must too: the shipped tset6 plate
+    models turn a plate 0.004-0.011 rad per push, which would tilt its later pushes away from
+    the table axes the executor pushes along."""
+    scenario = load_scenario("tset6")
+    models = ModelStore.load(default_models(scenario))
+    assert abs(models.models[("plate_1", 2)].mean[2]) > 0.005
+    tset6 = PlanningProblem(scenario, models)
+    plate = tset6.objects.ids.index("plate_1")
+    state = tset6.start
+    for primitive in (2, 2, 3):
+        state = tset6.apply(state, plate, primitive, 0.04)
+    assert state[plate, 2] == 0.0
+    moved = state[plate, :2] - tset6.start[plate, :2]
+    rates = tset6.rates[plate]
+    assert moved == pytest.approx(0.08 * rates[1, :2] + 0.04 * rates[2, :2])
 
 
 def test_push_constraints_reject_unreachable_and_blocked_pushes(problem):

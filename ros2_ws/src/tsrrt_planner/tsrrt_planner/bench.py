@@ -75,13 +75,16 @@ JITTER_DRAWS = 200  # draws of a jittered start before giving up
 def jittered_problem(scenario: Scenario, models: ModelStore, jitter: tuple[float, float],
                      seed: int) -> PlanningProblem:
     """The problem from the scenario's start with every object moved by a uniform offset within
-    +-jitter[0] m and +-jitter[1] rad, drawn with `seed` until the start is valid."""
+    +-jitter[0] m and +-jitter[1] rad (boxes; a disc has no heading), drawn with `seed` until
+    the start is valid."""
     rng = np.random.default_rng(seed)
     xy, theta = jitter
     for _ in range(JITTER_DRAWS):
+        # a disc keeps heading 0, as the loader and perception give it (scenario._heading)
         objects = tuple(dataclasses.replace(o, pose=Pose2D(
             o.pose.x + rng.uniform(-xy, xy), o.pose.y + rng.uniform(-xy, xy),
-            o.pose.theta + rng.uniform(-theta, theta))) for o in scenario.objects)
+            o.pose.theta + rng.uniform(-theta, theta) * (o.shape == "box")))
+            for o in scenario.objects)
         try:
             problem = PlanningProblem(dataclasses.replace(scenario, objects=objects), models)
         except PlannerError:

@@ -136,6 +136,9 @@ class PlanningProblem:
         shapes = [o.shape for o in scenario.objects]
         self.rates, self.available = models.rate_table(
             self.objects.ids, shapes, [o.object_class for o in scenario.objects])
+        # A disc's heading is never observed (perception keeps it at the scenario's, 0), so the
+        # executor pushes it along the same axes whatever a model says it turned.
+        self.rates[self.objects.is_disc, :, 2] = 0.0
         self.contact = np.zeros((self.n, 6, 2))
         self.direction = np.zeros((self.n, 6, 2))
         for i, spec in enumerate(scenario.objects):
