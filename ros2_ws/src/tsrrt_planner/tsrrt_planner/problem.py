@@ -136,16 +136,6 @@ class PlanningProblem:
         shapes = [o.shape for o in scenario.objects]
         self.rates, self.available = models.rate_table(
             self.objects.ids, shapes, [o.object_class for o in scenario.objects])
-        # A disc's heading is never observed (perception keeps it at the scenario's, 0), so the
-        # executor pushes it along the same axes whatever a model says it turned. And a disc is
-        # symmetric about the line it is pushed along, so the push moves it along that line:
-        # a side drift in its model is noise, and a drift of the same sign for the pushes 1 and
-        # 2 (their mirror images) let POLISH walk a plate sideways by pushing it back and forth
-        # (a tset6 demo executed 70 such pushes of 3 cm, each 1.2 mm sideways).
-        disc = self.objects.is_disc
-        self.rates[disc, :, 2] = 0.0
-        self.rates[np.ix_(disc, [0, 1], [1])] = 0.0
-        self.rates[np.ix_(disc, [2, 3], [0])] = 0.0
         self.contact = np.zeros((self.n, 6, 2))
         self.direction = np.zeros((self.n, 6, 2))
         for i, spec in enumerate(scenario.objects):
@@ -153,6 +143,16 @@ class PlanningProblem:
                 contact, direction = primitive_vector_in_object_frame(
                     spec.shape, spec.length, spec.width, p)
                 self.contact[i, p - 1], self.direction[i, p - 1] = contact, direction
+        # A disc's heading is never observed (perception keeps it at the scenario's, 0), so the
+        # executor pushes it along the same axes whatever a model says it turned. And a disc is
+        # symmetric about the line it is pushed along, so the push moves it along that line:
+        # a side drift in its model is noise, and a drift of the same sign for the pushes 1 and
+        # 2 (their mirror images) let POLISH walk a plate sideways by pushing it back and forth
+        # (a tset6 demo executed 70 such pushes of 3 cm, each 1.2 mm sideways).
+        disc = self.objects.is_disc
+        along = self.direction[disc]                                     # (d, 6, 2) unit vectors
+        self.rates[disc, :, :2] = (self.rates[disc, :, :2] * along).sum(-1, keepdims=True) * along
+        self.rates[disc, :, 2] = 0.0
         self.start = np.array([o.pose.as_array() for o in scenario.objects])
         # An observed start may break the margin by a little, and an object may overhang an
         # edge (it still rests on the table); plan from it without making either worse
