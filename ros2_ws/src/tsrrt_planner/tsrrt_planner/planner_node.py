@@ -358,7 +358,7 @@ class PlannerNode(Node):
     def _models_message(self) -> ForwardModelArray:
         rule, mirror = self._stopping_rule("", 0), self._mirror_check()
         statistics = {object_id: self._statistics(object_id)
-                      for object_id, _ in self.store.models}
+                      for object_id in {object_id for object_id, _ in self.store.models}}
         message = ForwardModelArray()
         message.header.stamp = self.get_clock().now().to_msg()
         for (object_id, primitive), model in sorted(self.store.models.items()):
