@@ -1,10 +1,11 @@
 """Shared machinery of the graph tests (integration/, reliability/): nodes as processes on a
 private ROS domain, and a probe node that records topics and calls services and actions.
 
-Each test module gets a random ROS domain of its own (localhost discovery only), so concurrent
-runs and stray nodes on the machine do not interfere. Every process started through `launch` is
-stopped at the module's teardown (SIGINT to its process group, SIGKILL if it does not exit), and
-its output goes to a log file that a failing test can show.
+Each test module, and each isolated node a test asks for, gets a random ROS domain never used
+before in the session (localhost discovery only), so concurrent runs and stray nodes on the
+machine do not interfere. Every process started through `launch` is stopped at the module's
+teardown (SIGINT to its process group, SIGKILL if it does not exit), and its output goes to a log
+file that a failing test can show.
 """
 
 from __future__ import annotations
@@ -34,12 +35,20 @@ except ImportError:     # without ROS the tests that need none still run; graph 
 PACKAGES_DIR = Path(__file__).resolve().parents[1] / "ros2_ws" / "src"
 
 
-def free_domain_id(taken: set[str]) -> int:
-    """A ROS domain id (1..101: valid UDP ports on Linux) not in `taken`."""
-    while True:
-        candidate = random.randint(1, 101)
-        if str(candidate) not in taken:
-            return candidate
+DOMAIN_IDS = range(1, 102)      # valid UDP ports on Linux
+_handed_out_domains = {os.environ.get("ROS_DOMAIN_ID", "")}
+
+
+def free_domain_id() -> str:
+    """A random ROS domain id never handed out before in this test session (nor the caller's).
+    Unique per session, not per module: a CI run once drew the same id for two modules in a row
+    and the graph tool's test listed the executor test's nodes."""
+    free = [str(domain) for domain in DOMAIN_IDS if str(domain) not in _handed_out_domains]
+    if not free:
+        raise RuntimeError(f"all {len(DOMAIN_IDS)} ROS domain ids are used in this session")
+    domain = random.choice(free)
+    _handed_out_domains.add(domain)
+    return domain
 
 
 class NodeProcess:
@@ -85,7 +94,6 @@ class Launcher:
         self.env = env
         self.log_dir = log_dir
         self.processes: list[NodeProcess] = []
-        self.domains = {env["ROS_DOMAIN_ID"]}    # this module's and every one handed out
 
     def start(self, package: str, node: str, *parameters: str, params_file: bool = True,
               env: dict[str, str] | None = None) -> NodeProcess:
@@ -104,11 +112,9 @@ class Launcher:
         return process
 
     def other_domain_env(self) -> dict[str, str]:
-        """The environment with a domain id of its own: not this module's, nor one handed out
-        before (three isolated planners once drew the same id and answered each other's goals)."""
-        domain = str(free_domain_id(self.domains))
-        self.domains.add(domain)
-        return dict(self.env, ROS_DOMAIN_ID=domain)
+        """The environment with a domain id of its own (three isolated planners once drew the
+        same id and answered each other's goals)."""
+        return dict(self.env, ROS_DOMAIN_ID=free_domain_id())
 
     def stop_all(self) -> None:
         for process in reversed(self.processes):
@@ -182,7 +188,7 @@ class Probe(Node):
 def ros_env() -> Iterator[dict[str, str]]:
     """The environment of this module's nodes and probe: its own domain, localhost only."""
     with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("ROS_DOMAIN_ID", str(free_domain_id({os.environ.get("ROS_DOMAIN_ID", "")})))
+        patch.setenv("ROS_DOMAIN_ID", free_domain_id())
         patch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         yield dict(os.environ)
 
