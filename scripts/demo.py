@@ -214,8 +214,11 @@ def _run_goal(client: DemoClient, goal: RunTask.Goal, timeout_s: float) -> RunTa
 
     def feedback(message: Any) -> None:
         f = message.feedback
-        line = (f"[demo] {f.phase:<10} pushes {f.pushes_done:3d}  replans {f.replans}  "
-                f"cost {f.current_cost:8.4f}  predicted {f.best_predicted_cost:8.4f}")
+        if f.phase == "learning":
+            line = f"[demo] learning   trials {f.pushes_done:3d}"
+        else:
+            line = (f"[demo] {f.phase:<10} pushes {f.pushes_done:3d}  replans {f.replans}  "
+                    f"cost {f.current_cost:8.4f}  predicted {f.best_predicted_cost:8.4f}")
         if line != last_line[0]:
             print(line, flush=True)
             last_line[0] = line

@@ -653,7 +653,8 @@ class PlannerNode(Node):
             result.learning_trials = self._learn(
                 ids, self._stopping_rule("", 0), cancelled,
                 lambda progress, total: goal_handle.publish_feedback(RunTask.Feedback(
-                    phase="learning", pushes_done=total)))
+                    phase="learning", pushes_done=total, current_cost=math.nan,
+                    best_predicted_cost=math.nan)))
             self._check_models("LEARNING_FAILED")
             environment = RosTaskEnvironment(self, ids, cancelled)
             self._check_start(environment.observe(), "PLANNING_FAILED")
