@@ -340,6 +340,35 @@ def test_polishing_turns_a_box_before_pushing_it_in_beside_a_neighbour(clean):
     assert clean.objective.cost(clean.apply(state, *push)) < clean.objective.cost(state)
 
 
+@pytest.fixture(scope="module")
+def tset6() -> PlanningProblem:
+    scenario = load_scenario("tset6")
+    return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+
+
+def test_polishing_looks_past_the_pushes_that_would_cross_the_edge(tset6):
+    """tset6 with every plate 2 mm short of its corner: the 64 pushes that lower the cost most
+    are the longer ones into the corners, all past the edges; the 2-mm pushes come after."""
+    grid = np.geomspace(tset6.min_length, tset6.max_length, 10)
+    short = np.array([[0.332, -0.208, 0.0], [0.568, 0.208, 0.0], [0.57, -0.208, 0.0],
+                      [0.33, 0.208, 0.0], [0.446, 0.0, -1.562], [0.329, 0.0, 1.56]])
+    assert tset6.state_valid(short)
+    assert polish_push(tset6, short, grid) is None
+    push = polish_push(tset6, short, grid, limit=None)
+    assert push is not None and push[2] == pytest.approx(tset6.min_length)
+    assert tset6.objective.cost(tset6.apply(short, *push)) < tset6.objective.cost(short)
+
+
+def test_a_plan_ends_where_no_push_lowers_the_cost(tset6):
+    """With shortest_within 0 the plan's end is polished over every candidate push (before,
+    each of seeds 0-3 at 150 nodes ended a 2-5 mm push short of a corner)."""
+    bound = lower_bound(tset6, starts=4)
+    result = TASK_SPACE_RRT(tset6, "tsrrt", seed=1, max_nodes=150,
+                            lower_bound_cost=bound.cost, target=bound.state)
+    grid = np.geomspace(tset6.min_length, tset6.max_length, 10)
+    assert polish_push(tset6, result.states[-1], grid, limit=None) is None
+
+
 @pytest.mark.parametrize("mode", MODES)
 def test_a_warm_started_plan_is_no_worse_than_its_warm_start(problem, bound, mode):
     previous = TASK_SPACE_RRT(problem, "tsrrt", seed=3, time_budget_s=None, max_nodes=300,
