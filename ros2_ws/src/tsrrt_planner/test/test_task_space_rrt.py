@@ -367,6 +367,7 @@ def test_a_plan_ends_where_no_push_lowers_the_cost(tset6):
                             lower_bound_cost=bound.cost, target=bound.state)
     grid = np.geomspace(tset6.min_length, tset6.max_length, 10)
     assert polish_push(tset6, result.states[-1], grid, limit=None) is None
+    assert result.trace[-1][2] <= result.best_cost   # the anytime trace has its gain too
 
 
 @pytest.mark.parametrize("mode", MODES)

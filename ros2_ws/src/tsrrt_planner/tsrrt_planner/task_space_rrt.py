@@ -350,11 +350,14 @@ class _Search:
             if self.shortest_within <= 0.0:
                 steps += self.finishing_polish(steps)
         states = simulate(self.problem, steps)
+        costs = np.asarray(self.problem.objective.cost(states))
+        if costs[-1] < self.trace[-1][2]:   # the finishing polish's gain, at the time it came
+            self.trace.append((self.elapsed(), self.tree.size, float(costs[-1])))
         return PlanResult(
             mode=self.mode, seed=self.seed,
             steps=tuple(PlanStep(self.problem.objects.ids[o], p, length)
                         for o, p, length in steps),
-            states=states, costs=np.asarray(self.problem.objective.cost(states)),
+            states=states, costs=costs,
             nodes=self.tree.size, elapsed_s=self.elapsed(), trace=tuple(self.trace),
             stop_reason=stop_reason, lower_bound=lower_bound)
 
