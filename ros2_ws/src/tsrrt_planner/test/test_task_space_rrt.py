@@ -22,11 +22,13 @@ from tsrrt_planner.task_space_rrt import (
     PlanStep,
     SoftDeadline,
     StallRule,
+    absorb_pushes,
     can_move,
     interchangeable_groups,
     lost_turn,
     match_to,
     polish_push,
+    simulate,
 )
 
 
@@ -368,6 +370,21 @@ def test_a_plan_ends_where_no_push_lowers_the_cost(tset6):
     grid = np.geomspace(tset6.min_length, tset6.max_length, 10)
     assert polish_push(tset6, result.states[-1], grid, limit=None) is None
     assert result.trace[-1][2] <= result.best_cost   # the anytime trace has its gain too
+
+
+def test_a_finishing_push_is_folded_into_the_earlier_push_it_completes(problem):
+    """A disc's 2-mm push after a 3-cm push of the same primitive (another object's push in
+    between) becomes one 3.2-cm push to the same end; a turning box's is kept (lengthening
+    its earlier push would not end where the two pushes do)."""
+    plate, other, platter = 0, 1, 2
+    steps = [(plate, 3, 0.03), (other, 3, 0.02), (plate, 3, 0.002)]
+    absorbed = absorb_pushes(problem, steps, first=2)
+    assert absorbed == [(plate, 3, pytest.approx(0.032)), (other, 3, 0.02)]
+    np.testing.assert_allclose(simulate(problem, absorbed)[-1], simulate(problem, steps)[-1],
+                               atol=1e-12)
+    turning = [(platter, 1, 0.03), (plate, 3, 0.02), (platter, 1, 0.002)]
+    assert problem.rates[platter, 0, 2] != 0.0
+    assert absorb_pushes(problem, turning, first=2) == turning
 
 
 @pytest.mark.parametrize("mode", MODES)

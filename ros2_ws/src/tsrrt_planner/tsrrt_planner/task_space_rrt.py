@@ -348,7 +348,8 @@ class _Search:
         if self.mode == "tsrrt":
             steps = self.shortcut(steps)
             if self.shortest_within <= 0.0:
-                steps += self.finishing_polish(steps)
+                steps = absorb_pushes(self.problem, steps + self.finishing_polish(steps),
+                                      first=len(steps))
         states = simulate(self.problem, steps)
         costs = np.asarray(self.problem.objective.cost(states))
         if costs[-1] < self.trace[-1][2]:   # the finishing polish's gain, at the time it came
@@ -520,6 +521,30 @@ def merge_runs(problem: PlanningProblem, steps: list[Push]) -> list[Push]:
                     reference + 1e-12):
                 steps = steps[:k] + tail
                 states = states[:k] + replayed
+                reference = float(problem.objective.cost(states[-1]))
+                continue
+        k += 1
+    return steps
+
+
+def absorb_pushes(problem: PlanningProblem, steps: list[Push], first: int) -> list[Push]:
+    """Fold each push from `first` on into the latest earlier push of the same object and
+    primitive, lengthened by as much, when the plan stays valid and ends no worse. The
+    finishing polish's 2-mm pushes mostly finish what such a push stopped short of (a plate
+    aimed 2 mm inside its corner); appended, they made tset6 plans 5-10 pushes longer."""
+    states = list(simulate(problem, steps))
+    reference = float(problem.objective.cost(states[-1]))
+    k = first
+    while k < len(steps):
+        o, p, length = steps[k]
+        earlier = [j for j in range(k) if steps[j][:2] == (o, p)]
+        if earlier and steps[earlier[-1]][2] + length <= problem.max_lengths[o] + 1e-12:
+            j = earlier[-1]
+            tail = [(o, p, steps[j][2] + length)] + steps[j + 1:k] + steps[k + 1:]
+            replayed = replay_from(problem, states[j], tail)
+            if replayed is not None and float(problem.objective.cost(replayed[-1])) <= (
+                    reference + 1e-12):
+                steps, states = steps[:j] + tail, states[:j] + replayed
                 reference = float(problem.objective.cost(states[-1]))
                 continue
         k += 1
