@@ -347,9 +347,11 @@ class _Search:
         steps = [(int(a[0]), int(a[1]), float(a[2])) for a in actions]
         if self.mode == "tsrrt":
             steps = self.shortcut(steps)
-            if self.shortest_within <= 0.0:
-                steps = absorb_pushes(self.problem, steps + self.finishing_polish(steps),
-                                      first=len(steps))
+            finished = absorb_pushes(self.problem, steps + self.finishing_polish(steps),
+                                     first=len(steps))
+            # asked for the shortest plan near the best, take the finish only where it is free
+            if self.shortest_within <= 0.0 or len(finished) <= len(steps):
+                steps = finished
         states = simulate(self.problem, steps)
         costs = np.asarray(self.problem.objective.cost(states))
         if costs[-1] < self.trace[-1][2]:   # the finishing polish's gain, at the time it came
