@@ -225,6 +225,8 @@ class _Search:
         self.cancelled = (cancel.is_set if isinstance(cancel, threading.Event) else cancel)
         self.began = time.perf_counter()
         self.weights = orientation_weights  # (n,)
+        self.length_grid = np.geomspace(problem.min_length, problem.max_length,
+                                        config.length_grid)   # push lengths of line searches
         start_cost = float(problem.objective.cost(problem.start))
         self.tree = Tree(problem.start, start_cost)
         self.best, self.best_cost = 0, start_cost
@@ -383,16 +385,8 @@ class _Search:
         (3.8 % above the bound, 3.1 % after the five 2-mm pushes it had missed). The search
         keeps the limit: polishing that deep all along sent 6 of 16 tset6 seeds (350 nodes)
         into the walled-in basin against 3."""
-        state, pushes = simulate(self.problem, steps)[-1], []
-        grid = np.geomspace(self.problem.min_length, self.problem.max_length,
-                            self.config.length_grid)
-        while len(pushes) < self.config.polish_steps:
-            push = polish_push(self.problem, state, grid, limit=None)
-            if push is None:
-                break
-            pushes.append(push)
-            state = self.problem.apply(state, *push)
-        return pushes
+        return polish_pushes(self.problem, simulate(self.problem, steps)[-1], self.length_grid,
+                             self.config.polish_steps, limit=None)
 
     def shortcut(self, steps: list[Push]) -> list[Push]:
         """Shorten the plan: re-steer from an early state of the plan straight to its final
@@ -408,19 +402,13 @@ class _Search:
         costs = np.asarray(problem.objective.cost(states))
         final_cost = float(costs[-1])
         allowed = final_cost + SHORTCUT_TOLERANCE * max(abs(final_cost), 1e-12)
-        grid = np.geomspace(problem.min_length, problem.max_length, self.config.length_grid)
         near_final = final_cost + PLAN_COST_TOLERANCE * max(abs(final_cost), 1e-12)
         first_near = int(np.argmax(costs <= near_final))
         if first_near < len(steps):
             # a plan that got near its end cost early, then took a detour (parking objects)
             # to gain a little: stop there and polish instead
-            state, polished = states[first_near], []
-            while len(polished) < CUT_POLISH_PUSHES:
-                push = polish_push(problem, state, grid)
-                if push is None:
-                    break
-                polished.append(push)
-                state = problem.apply(state, *push)
+            polished = polish_pushes(problem, states[first_near], self.length_grid,
+                                     CUT_POLISH_PUSHES)
             if first_near + len(polished) < len(steps):
                 steps = steps[:first_near] + polished
                 states = simulate(problem, steps)
@@ -431,7 +419,7 @@ class _Search:
             while len(replacement) < len(steps) - k:
                 push = steer_push(problem, state, states[-1], self.weights)
                 if push is None:
-                    push = polish_push(problem, state, grid)
+                    push = polish_push(problem, state, self.length_grid)
                     if push is None:
                         break
                 replacement.append(push)
@@ -675,8 +663,6 @@ class _TsrrtSearch(_Search):
             self.time_budget_s *= self.search_share
         self.previous_goal = previous_goal
         self.groups = interchangeable_groups(self.problem)
-        self.length_grid = np.geomspace(self.problem.min_length, self.problem.max_length,
-                                        self.config.length_grid)
         self.targets: list[tuple[float, np.ndarray]] = []
         self.polished: set[int] = set()  # nodes where polishing found nothing more
         if target is not None:
@@ -943,6 +929,19 @@ def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
     order = order[gain[order] > np.maximum(MIN_STEER_GAIN * before[order], 1e-10)]
     k = _first_valid(problem, state, objects, primitives, lengths, order)
     return None if k is None else (int(objects[k]), int(primitives[k]), float(lengths[k]))
+
+
+def polish_pushes(problem: PlanningProblem, state: np.ndarray, grid: np.ndarray,
+                  max_pushes: int, limit: int | None = 64) -> list[Push]:
+    """Up to `max_pushes` polish_push pushes in a row from `state`, until none lowers the cost."""
+    pushes: list[Push] = []
+    while len(pushes) < max_pushes:
+        push = polish_push(problem, state, grid, limit)
+        if push is None:
+            break
+        pushes.append(push)
+        state = problem.apply(state, *push)
+    return pushes
 
 
 def polish_push(problem: PlanningProblem, state: np.ndarray, grid: np.ndarray,
