@@ -67,6 +67,12 @@ class NodeProcess:
         """Signal the process group, wait, escalate to SIGKILL; returns the exit code."""
         return stop_process_group(self.popen, sig)
 
+    def stop_cleanly(self, sig: int = signal.SIGINT) -> None:
+        """stop() and assert exit code 0, showing the log's end otherwise: a node that hangs
+        on the signal prints every thread's stack there (run_node), which says where."""
+        code = self.stop(sig)
+        assert code == 0, f"{self.name} exited with {code}; its log ends:\n{self.log()[-6000:]}"
+
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")
 
