@@ -124,16 +124,35 @@ def default_models_path(scenario_name: str) -> Path:
     return Path(data_home) / "tsrrt" / "models" / f"{scenario_name}.yaml"
 
 
+def shutting_down() -> bool:
+    """True once rclpy's context is down (SIGINT/SIGTERM). The executor then spins no more, so
+    a future still pending never completes, and the process cannot exit before every callback
+    has returned: a goal must stop waiting and planning, or it holds the node up for its
+    timeouts (a fresh-clone CI run killed planner_node 15 s after SIGINT)."""
+    return not rclpy.ok()
+
+
 def wait_for_future(future: rclpy.task.Future, timeout_s: float,
                     cancelled: Callable[[], bool] = lambda: False) -> bool:
-    """Block this (executor worker) thread until the future is done; False on timeout/cancel."""
+    """Block this (executor worker) thread until the future is done; False on timeout, cancel
+    or shutdown."""
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     deadline = time.monotonic() + timeout_s
     while not done.wait(0.05):
-        if time.monotonic() > deadline or cancelled():
+        if time.monotonic() > deadline or cancelled() or shutting_down():
             return False
     return True
+
+
+def _raise_if_shutting_down() -> None:
+    if shutting_down():
+        raise GoalFailed("CANCELED", "the node is shutting down")
+
+
+def _stop_requested(goal_handle) -> bool:
+    """A goal's work stops on its cancel and on the node's shutdown alike."""
+    return goal_handle.is_cancel_requested or shutting_down()
 
 
 OBSERVE_ATTEMPTS = 3   # settled observations an object may be missing from before the task stops
@@ -389,6 +408,7 @@ class PlannerNode(Node):
         deadline = time.monotonic() + timeout
         problem = "perception did not answer"
         while (remaining := deadline - time.monotonic()) > 0.0:
+            _raise_if_shutting_down()
             wait_s = min(max(remaining, 0.5), SETTLE_REQUEST_S)
             future = self.settled_client.call_async(GetSettledObjects.Request(
                 timeout_s=wait_s, not_before=not_before or TimeMessage()))
@@ -419,6 +439,7 @@ class PlannerNode(Node):
             raise GoalFailed("EXECUTION_FAILED", "the executor rejected the push")
         result_future = handle.get_result_async()
         if not wait_for_future(result_future, self._param("push_timeout_s"), cancelled):
+            _raise_if_shutting_down()   # nobody is left to answer a cancel
             cancel_future = handle.cancel_goal_async()
             wait_for_future(cancel_future, self._param("server_timeout_s"))
             # The executor retreats before it answers a cancel; wait for that answer.
@@ -438,7 +459,9 @@ class PlannerNode(Node):
         return GoalResponse.ACCEPT
 
     def _run_exclusive(self, goal_handle, result, work: Callable[[], None]):
-        """Run `work`, mapping GoalFailed and library errors to the result's code/message."""
+        """Run `work`, mapping GoalFailed and library errors to the result's code/message. A
+        goal still running at shutdown outlives its node (rclpy destroys the node without
+        waiting for callbacks): its handle and publishers are gone, so nothing is sent."""
         if not self._busy.acquire(blocking=False):
             result.error_code = result.INVALID_GOAL
             result.error_msg = "another task is running"
@@ -447,7 +470,8 @@ class PlannerNode(Node):
         try:
             work()
             result.error_code = result.SUCCESS
-            goal_handle.succeed()
+            if not shutting_down():
+                goal_handle.succeed()
         except GoalFailed as failure:
             result.error_code, result.error_msg = failure.code_for(result), str(failure)
             self._finish(goal_handle, failure.reason == "CANCELED")
@@ -460,6 +484,11 @@ class PlannerNode(Node):
         except (TsrrtError, ValueError) as failure:
             result.error_code, result.error_msg = result.INVALID_GOAL, str(failure)
             self._finish(goal_handle, False)
+        except Exception:
+            if not shutting_down():
+                raise
+            result.error_code = GoalFailed("CANCELED", "").code_for(result)
+            result.error_msg = "the node shut down during the goal"
         finally:
             self._busy.release()
         if result.error_code != result.SUCCESS:
@@ -468,6 +497,8 @@ class PlannerNode(Node):
 
     @staticmethod
     def _finish(goal_handle, cancelled: bool) -> None:
+        if shutting_down():
+            return
         if cancelled and goal_handle.is_cancel_requested:
             goal_handle.canceled()
         else:
@@ -487,7 +518,7 @@ class PlannerNode(Node):
             rule = self._stopping_rule(goal.stopping_rule, goal.max_trials_per_primitive)
             self._require_readable_models()
             result.trials = self._learn(
-                ids, rule, lambda: goal_handle.is_cancel_requested,
+                ids, rule, lambda: _stop_requested(goal_handle),
                 lambda progress, total: goal_handle.publish_feedback(LearnModels.Feedback(
                     object_id=progress.object_id, primitive=progress.primitive,
                     trials_done=total, sigma=[float(v) for v in progress.sigma])))
@@ -610,7 +641,7 @@ class PlannerNode(Node):
             settings = self._settings(goal.planner, goal.budget_s, seed=goal.seed)
             self._check_models("NO_MODELS")
             ids = [o.id for o in self.scenario.objects]
-            cancelled = lambda: goal_handle.is_cancel_requested  # noqa: E731
+            cancelled = lambda: _stop_requested(goal_handle)  # noqa: E731
             observed = RosTaskEnvironment(self, ids, cancelled).observe()
             self._check_start(observed, "INFEASIBLE_START")
             bound = self._bound()
@@ -647,7 +678,7 @@ class PlannerNode(Node):
         def work() -> None:
             settings = self._settings(goal.planner, goal.planning_budget_s, goal.max_pushes,
                                       goal.time_budget_s)
-            cancelled = lambda: goal_handle.is_cancel_requested  # noqa: E731
+            cancelled = lambda: _stop_requested(goal_handle)  # noqa: E731
             ids = [o.id for o in self.scenario.objects]
             self._require_readable_models()
             result.learning_trials = self._learn(
