@@ -11,7 +11,7 @@ import pytest
 
 from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.bench import default_models
-from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.errors import Cancelled, PlannerError
 from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap, swap_refine
 from tsrrt_planner.model_learning import ModelStore
 from tsrrt_planner.problem import PlanningProblem
@@ -203,23 +203,49 @@ def test_lower_bound_is_feasible_and_below_start(problem, bound):
     assert feasible and cost <= problem.objective.cost(problem.start) + 1e-12
 
 
-def test_swapping_neighbours_finds_the_better_order_of_a_cluster():
-    """clean's objective gathers three boxes side by side; descending from the eraser between
-    the scale and the remote ends in a local minimum the remote in the middle beats."""
+@pytest.mark.parametrize("answers_before_cancel", [0, 2])
+def test_a_cancelled_lower_bound_raises_instead_of_returning_a_partial_one(
+        problem, answers_before_cancel):
+    asked = []
+
+    def cancel() -> bool:
+        asked.append(True)
+        return len(asked) > answers_before_cancel
+
+    with pytest.raises(Cancelled, match="cancelled after"):
+        lower_bound(problem, starts=4, cancel=cancel)
+    assert len(asked) == answers_before_cancel + 1   # it stopped at the first True
+
+
+@pytest.fixture(scope="module")
+def eraser_between() -> tuple[PlanningProblem, np.ndarray, float]:
+    """clean's objective gathers three boxes side by side: the local minimum descended to
+    from the eraser between the scale and the remote (the remote in the middle is better)."""
     scenario = load_scenario("clean")
     problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
     ids = problem.objects.ids
     scale, remote, eraser = (ids.index(name) for name in ("scale", "remote", "eraser"))
-    eraser_between = problem.start.copy()
-    eraser_between[[scale, remote, eraser]] = [[0.45, -0.09, 0.0], [0.45, 0.053, 0.0],
-                                               [0.45, 0.0, 0.0]]
-    state, cost, feasible = local_minimum(problem, eraser_between, max_iterations=150)
+    start = problem.start.copy()
+    start[[scale, remote, eraser]] = [[0.45, -0.09, 0.0], [0.45, 0.053, 0.0], [0.45, 0.0, 0.0]]
+    state, cost, feasible = local_minimum(problem, start, max_iterations=150)
     assert feasible and state[scale, 1] < state[eraser, 1] < state[remote, 1]
+    return problem, state, cost
+
+
+def test_swapping_neighbours_finds_the_better_order_of_a_cluster(eraser_between):
+    problem, state, cost = eraser_between
+    remote = problem.objects.ids.index("remote")
     refined, refined_cost, descents = swap_refine(problem, state, cost, deadline=math.inf)
     assert descents >= 1 and refined_cost < cost - 1e-3
     assert problem.checker.constraint_values(refined).min() > -1e-5
     middle = np.argsort(refined[:, 1])[1]
     assert middle == remote
+
+
+def test_swap_refine_stops_when_cancelled(eraser_between):
+    problem, state, cost = eraser_between
+    with pytest.raises(Cancelled, match="after 0 exchanges"):
+        swap_refine(problem, state, cost, deadline=math.inf, cancel=lambda: True)
 
 
 @pytest.mark.parametrize("cost, bound, gap", [

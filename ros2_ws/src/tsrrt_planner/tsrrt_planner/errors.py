@@ -19,3 +19,8 @@ class ModelError(PlannerError):
 
 class ModelFileError(ModelError):
     """A model file is corrupt or does not match the scenario; it is never silently replaced."""
+
+
+class Cancelled(PlannerError):
+    """Work stopped on request (a cancelled goal, a node shutting down) before it had a
+    result worth keeping."""

@@ -25,11 +25,13 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
 
+from tsrrt_planner.errors import Cancelled
 from tsrrt_planner.problem import PlanningProblem
 
 FEASIBILITY_TOLERANCE = 1e-5  # metres; SLSQP stops a hair outside active constraints
@@ -94,12 +96,18 @@ class LowerBound:
 
 
 def lower_bound(problem: PlanningProblem, starts: int = 16, seed: int = 0,
-                time_limit_s: float = 30.0) -> LowerBound:
-    """Multi-start constrained minimisation of the objective (see the module docstring)."""
+                time_limit_s: float = 30.0,
+                cancel: Callable[[], bool] = lambda: False) -> LowerBound:
+    """Multi-start constrained minimisation of the objective (see the module docstring).
+    `cancel` is asked before every descent; True raises Cancelled (a partial multi-start is
+    no bound to keep). A descent takes up to a second or two, the whole bound up to
+    `time_limit_s` (tset6 with learned models: 22 s), too long for a node that must stop."""
     rng = np.random.default_rng(seed)
     began = time.perf_counter()
     best_state, best_cost, feasible_count, tried = None, np.inf, 0, 0
     for k in range(starts):
+        if cancel():
+            raise Cancelled(f"lower bound cancelled after {k} of {starts} starts")
         if k and time.perf_counter() - began > time_limit_s:
             break
         start = problem.start if k == 0 else random_state(problem, rng)
@@ -113,18 +121,18 @@ def lower_bound(problem: PlanningProblem, starts: int = 16, seed: int = 0,
         best_state, best_cost = problem.start, float(problem.objective.cost(problem.start))
     else:
         best_state, best_cost, _ = swap_refine(problem, best_state, best_cost,
-                                               began + time_limit_s)
+                                               began + time_limit_s, cancel)
     return LowerBound(best_cost, best_state, tried, feasible_count,
                       time.perf_counter() - began)
 
 
-def swap_refine(problem: PlanningProblem, state: np.ndarray, cost: float, deadline: float
-                ) -> tuple[np.ndarray, float, int]:
+def swap_refine(problem: PlanningProblem, state: np.ndarray, cost: float, deadline: float,
+                cancel: Callable[[], bool] = lambda: False) -> tuple[np.ndarray, float, int]:
     """Exchange the positions of two neighbouring objects of different kinds (headings stay)
     and descend again; keep the first exchange that is feasible and better, until none is (or
     the perf_counter `deadline` passes). Neighbours only: their order is what multi-starts
     get wrong, and a tset6 plate in a corner never gains from a platter's place (8 descents,
-    2.5 s). Returns the state, its cost and the descents made."""
+    2.5 s). Returns the state, its cost and the descents made; `cancel` as in lower_bound."""
     kinds = [(spec.object_class, spec.shape, spec.length, spec.width)
              for spec in problem.scenario.objects]
     objects = problem.objects
@@ -139,6 +147,8 @@ def swap_refine(problem: PlanningProblem, state: np.ndarray, cost: float, deadli
         for i, j in pairs:
             if time.perf_counter() >= deadline:
                 break
+            if cancel():
+                raise Cancelled(f"lower bound cancelled after {descents} exchanges")
             swapped = state.copy()
             swapped[[i, j], :2] = state[[j, i], :2]
             found, found_cost, feasible = local_minimum(problem, swapped, max_iterations=150)

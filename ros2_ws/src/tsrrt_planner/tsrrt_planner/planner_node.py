@@ -69,7 +69,7 @@ from tsrrt_planner.closed_loop import (
     run_task,
     scenario_at,
 )
-from tsrrt_planner.errors import ModelFileError, PlannerError
+from tsrrt_planner.errors import Cancelled, ModelFileError, PlannerError
 from tsrrt_planner.lower_bound import LowerBound, lower_bound, relative_gap
 from tsrrt_planner.model_learning import (
     ConfidenceStoppingRule,
@@ -575,18 +575,23 @@ class PlannerNode(Node):
                                           "trial limit; planning with them anyway")
         return trials
 
-    def _bound(self) -> LowerBound:
+    def _bound(self, cancelled: Callable[[], bool]) -> LowerBound:
         """The lower bound and its optimum (the planner's target), computed once from the
         scenario as loaded, as the planner bench does, not from what the robot observes when
         a task begins: the multi-start's first start is the start state, and an objective may
         have a continuum of optima (tset6: two platters touching on any line through the
         table's centre cost the same), of which the one found decides what the planner steers
         to. From a tset6 demo's observed start, 8 s of planning towards the optimum found from
-        that start reached 51-63 % above the bound (3 seeds), towards the bench's 26 %."""
+        that start reached 51-63 % above the bound (3 seeds), towards the bench's 26 %.
+        A cancelled goal or a shutdown stops it (up to 30 s otherwise) and leaves it unknown."""
         if self._lower_bound is None:
             problem = PlanningProblem(self.scenario, self.store, self.reachability,
                                       margin=self._param("planning_margin"))
-            self._lower_bound = lower_bound(problem, starts=self._param("lower_bound_starts"))
+            try:
+                self._lower_bound = lower_bound(problem, starts=self._param("lower_bound_starts"),
+                                                cancel=cancelled)
+            except Cancelled as stopped:
+                raise GoalFailed("CANCELED", str(stopped)) from None
         return self._lower_bound
 
     def _settings(self, planner: str, budget_s: float, max_pushes: int = 0,
@@ -644,7 +649,7 @@ class PlannerNode(Node):
             cancelled = lambda: _stop_requested(goal_handle)  # noqa: E731
             observed = RosTaskEnvironment(self, ids, cancelled).observe()
             self._check_start(observed, "INFEASIBLE_START")
-            bound = self._bound()
+            bound = self._bound(cancelled)
             began = time.monotonic()
 
             def feedback(info) -> None:
@@ -689,7 +694,7 @@ class PlannerNode(Node):
             self._check_models("LEARNING_FAILED")
             environment = RosTaskEnvironment(self, ids, cancelled)
             self._check_start(environment.observe(), "PLANNING_FAILED")
-            bound = self._bound()
+            bound = self._bound(cancelled)
 
             reports: list[TaskReport] = []   # the task's, kept for a result on failure
 
