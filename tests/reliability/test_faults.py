@@ -201,15 +201,18 @@ def assert_same_poses(seen: dict[str, np.ndarray], truth: dict[str, np.ndarray],
 
 def test_perception_restart_recovers_the_same_ids_at_the_same_poses(graph: TaskGraph,
                                                                      figures):
-    # Start from poses away from the scenario's (which name the detections): move both.
+    # Start from poses away from the scenario's (which name the detections): move both, each
+    # by less than the 5 cm a tracked object may jump between frames (gate_tracked): a fresh-
+    # clone CI run moved the eraser 5.4 cm within 0.5 s of its last frame, and perception
+    # rightly took it for a new object ("eraser_1").
     graph.reset()
-    graph.disturb("eraser", 0.05, -0.02, 0.3)
-    graph.disturb("remote", 0.03, -0.04, -0.2)
+    graph.disturb("eraser", 0.04, -0.02, 0.3)
+    graph.disturb("remote", 0.03, -0.03, -0.2)
     graph.fresh_truth()
     graph.fresh_truth()         # rendered after the bumps, not while they were applied
     before, truth = graph.wait_until_perceived()
     assert_same_poses(before, truth, "before the restart")
-    assert abs(truth["eraser"][0] - 0.49) < POSE_TOLERANCE, "the bump has not shown yet"
+    assert abs(truth["eraser"][0] - 0.48) < POSE_TOLERANCE, "the bump has not shown yet"
     graph.processes["perception_node"].stop_cleanly(signal.SIGTERM)
     began = time.monotonic()
     graph.start_perception()
