@@ -248,6 +248,23 @@ def test_planner_signalled_while_planning_exits_at_once(graph: TaskGraph, figure
     graph.wait_ready()
 
 
+def test_executor_signalled_mid_push_exits_at_once(graph: TaskGraph, figures):
+    # Its push waited for the controller's result and then for joint states that no longer
+    # came in (server_timeout, 15 s here), past the grace. Waits end on shutdown.
+    graph.reset()
+    feedback: list = []
+    handle = graph.probe.send_goal(graph.execute_client, ExecutePrimitive.Goal(
+        object_id="eraser", primitive=1, push_length=0.03), feedback)
+    assert handle.accepted, "goal rejected"
+    assert graph.probe.spin_until(lambda: any(
+        f.feedback.phase == Feedback.PHASE_PUSH for f in feedback), 60.0), "no push began"
+    began = time.monotonic()
+    graph.processes["executor_node"].stop_cleanly()
+    figures["stop_s"] = round(time.monotonic() - began, 1)
+    graph.start_executor()
+    graph.wait_ready()
+
+
 def test_object_out_of_reach_is_reported_and_the_rest_of_the_task_done(graph: TaskGraph,
                                                                        figures):
     for name in ("planner_node", "perception_node"):

@@ -46,6 +46,16 @@ SHUTDOWN_POLL_S = 0.5  # how often an idle spin wakes to check whether its conte
 SETTLE_REQUEST_S = 2.0
 
 
+def shutting_down() -> bool:
+    """True once rclpy's context is down (SIGINT/SIGTERM). The executor then spins no more, so a
+    future still pending never completes, and rclpy destroys the node without waiting for its
+    running callbacks, yet the process exits only once every worker thread has returned: a goal
+    must stop waiting and working then, and send nothing through its destroyed handle, or it
+    holds the process past its stop grace (a fresh-clone CI run killed planner_node 15 s after
+    SIGINT)."""
+    return not rclpy.ok()
+
+
 def time_message(seconds: float) -> TimeMessage:
     """builtin_interfaces/Time of a time in seconds (e.g. simulation time)."""
     nanoseconds = round(seconds * 1e9)

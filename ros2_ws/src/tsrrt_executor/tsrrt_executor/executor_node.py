@@ -52,6 +52,7 @@ from tsrrt_common.ros_node import (
     ActionClient,
     run_node,
     seconds,
+    shutting_down,
     time_message,
 )
 from tsrrt_executor.errors import IKError, PrimitiveError, TrajectoryError, UnreachableError
@@ -113,6 +114,11 @@ def trajectory_message(trajectory: TimedJointTrajectory) -> JointTrajectory:
 def _float_range(low: float, high: float, description: str) -> ParameterDescriptor:
     return ParameterDescriptor(description=description, floating_point_range=[
         FloatingPointRange(from_value=low, to_value=high)])
+
+
+def _raise_if_shutting_down() -> None:
+    if shutting_down():
+        raise GoalFailed(Result.CANCELED, "the node is shutting down")
 
 
 class ExecutorNode(Node):
@@ -223,12 +229,14 @@ class ExecutorNode(Node):
     def _wait(self, future, timeout: float, goal_handle=None) -> bool:
         """Block this worker thread until `future` is done; False on timeout.
 
-        With a goal handle, a cancel request ends the wait by raising GoalFailed(CANCELED).
+        With a goal handle, a cancel request ends the wait by raising GoalFailed(CANCELED); a
+        shutdown ends any wait so (nothing would answer it).
         """
         done = threading.Event()
         future.add_done_callback(lambda _: done.set())
         deadline = time.monotonic() + timeout
         while not done.wait(0.01):
+            _raise_if_shutting_down()
             if goal_handle is not None and goal_handle.is_cancel_requested:
                 raise GoalFailed(Result.CANCELED, "canceled; the arm is in the observe posture")
             if time.monotonic() > deadline:
@@ -257,6 +265,7 @@ class ExecutorNode(Node):
                     newer_than is None or arrival > newer_than) and (
                     stamped_after is None or stamp >= stamped_after):
                 return positions
+            _raise_if_shutting_down()
             if now > deadline:
                 raise GoalFailed(Result.CONTROLLER_UNAVAILABLE,
                                  f"no /joint_states from the arm for {timeout:g} s; is the "
@@ -365,7 +374,8 @@ class ExecutorNode(Node):
         try:
             self._run(goal_handle, result)
             result.error_code = Result.SUCCESS
-            goal_handle.succeed()
+            if not shutting_down():
+                goal_handle.succeed()
             stages = ", ".join(f"{name} {took:.2f}" for name, took in
                                self.stage_times.items())
             self.get_logger().info(
@@ -375,10 +385,15 @@ class ExecutorNode(Node):
             result.error_code, result.error_msg = failure.code, str(failure)
             self.get_logger().warning(
                 f"primitive {goal.primitive} on {goal.object_id!r}: {failure}")
-            if failure.code == Result.CANCELED:
-                goal_handle.canceled()
-            else:
-                goal_handle.abort()
+            if not shutting_down():   # else the node and the goal's handle are gone
+                if failure.code == Result.CANCELED:
+                    goal_handle.canceled()
+                else:
+                    goal_handle.abort()
+        except Exception:
+            if not shutting_down():
+                raise
+            result.error_code, result.error_msg = Result.CANCELED, "the node shut down"
         finally:
             with self.lock:
                 self.busy = False

@@ -49,7 +49,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, footprint_polygon
-from tsrrt_common.ros_node import SETTLE_REQUEST_S, ActionClient, run_node
+from tsrrt_common.ros_node import SETTLE_REQUEST_S, ActionClient, run_node, shutting_down
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_executor.push_primitives import primitives_for
 from tsrrt_executor.reachability import default_map
@@ -122,14 +122,6 @@ def _integer(low: int, high: int, description: str) -> ParameterDescriptor:
 def default_models_path(scenario_name: str) -> Path:
     data_home = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
     return Path(data_home) / "tsrrt" / "models" / f"{scenario_name}.yaml"
-
-
-def shutting_down() -> bool:
-    """True once rclpy's context is down (SIGINT/SIGTERM). The executor then spins no more, so
-    a future still pending never completes, and the process cannot exit before every callback
-    has returned: a goal must stop waiting and planning, or it holds the node up for its
-    timeouts (a fresh-clone CI run killed planner_node 15 s after SIGINT)."""
-    return not rclpy.ok()
 
 
 def wait_for_future(future: rclpy.task.Future, timeout_s: float,
