@@ -2,19 +2,22 @@
 private ROS domain, and a probe node that records topics and calls services and actions.
 
 Each test module, and each isolated node a test asks for, gets a random ROS domain never used
-before in the session (localhost discovery only), so concurrent runs and stray nodes on the
-machine do not interfere. Every process started through `launch` is stopped at the module's
-teardown (SIGINT to its process group, SIGKILL if it does not exit), and its output goes to a log
-file that a failing test can show.
+before in the session and not held by another test session on the machine (a lock file per
+domain; localhost discovery only), so concurrent runs and stray nodes do not interfere. Every
+process started through `launch` is stopped at the module's teardown (SIGINT to its process
+group, SIGKILL if it does not exit), and its output goes to a log file that a failing test can
+show.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import random
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -37,18 +40,29 @@ PACKAGES_DIR = Path(__file__).resolve().parents[1] / "ros2_ws" / "src"
 
 DOMAIN_IDS = range(1, 102)      # valid UDP ports on Linux
 _handed_out_domains = {os.environ.get("ROS_DOMAIN_ID", "")}
+_domain_locks: list = []        # open lock files: the domains this session holds until it exits
 
 
 def free_domain_id() -> str:
-    """A random ROS domain id never handed out before in this test session (nor the caller's).
-    Unique per session, not per module: a CI run once drew the same id for two modules in a row
-    and the graph tool's test listed the executor test's nodes."""
+    """A random ROS domain id never handed out before in this test session (nor the caller's)
+    and held by no other test session on the machine. Unique per session, not per module: a CI
+    run once drew the same id for two modules in a row and the graph tool's test listed the
+    executor test's nodes. Locked across sessions: two runs side by side drew the same id, and
+    one's RunTask went to the other's busy planner ("RunTask rejected")."""
     free = [str(domain) for domain in DOMAIN_IDS if str(domain) not in _handed_out_domains]
-    if not free:
-        raise RuntimeError(f"all {len(DOMAIN_IDS)} ROS domain ids are used in this session")
-    domain = random.choice(free)
-    _handed_out_domains.add(domain)
-    return domain
+    random.shuffle(free)
+    for domain in free:
+        _handed_out_domains.add(domain)
+        lock = open(Path(tempfile.gettempdir()) / f"tsrrt_ros_domain_{domain}.lock", "w")
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:     # another session's
+            lock.close()
+            continue
+        _domain_locks.append(lock)
+        return domain
+    raise RuntimeError(f"all {len(DOMAIN_IDS)} ROS domain ids are used in this session or "
+                       "held by other test sessions")
 
 
 class NodeProcess:
