@@ -11,6 +11,7 @@ import pytest
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario
 from tsrrt_executor.push_primitives import ball_path_points, push_geometry
+from tsrrt_executor.reachability import default_map
 from tsrrt_planner import closed_loop
 from tsrrt_planner.closed_loop import (
     ExecutionFailed,
@@ -138,19 +139,34 @@ def test_learning_area_accepts_a_push_that_improves_a_tight_start() -> None:
     assert reason is not None and "table edge" in reason
 
 
-def test_learning_area_keeps_faces_within_reach() -> None:
+def test_learning_area_keeps_pushes_within_reach() -> None:
     """A push towards the base that takes the near face's approach point inside the arm's
     minimum radius is refused; one away from the base is fine."""
     scenario = load_scenario("clean")
     spec = scenario.object("eraser")
     area = LearningArea(scenario.table, reach=AnnulusReachability(0.25, 0.75))
     start = Pose2D(0.35, 0.0, 0.0)   # near face's approach point at 0.35 - 0.06 - 0.027 = 0.263
-    assert area.unreachable_faces(spec, start) == 0
+    assert area.unreachable_pushes(spec, start) == 0
     reason = area.problem(spec, start, Pose2D(0.33, 0.0, 0.0))
     assert reason is not None and "out of the arm's reach" in reason
     assert area.problem(spec, start, Pose2D(0.40, 0.0, 0.0)) is None
-    # Room counts unreachable faces, so repositioning heads back into reach.
+    # Room counts unreachable pushes, so repositioning heads back into reach.
     assert area.room(spec, Pose2D(0.31, 0.0, 0.0)) < area.room(spec, Pose2D(0.40, 0.0, 0.0)) - 0.04
+
+
+def test_learning_area_counts_turns_out_of_reach_not_only_faces() -> None:
+    """The clean demo's eraser, walked along its long axis into the base's dead zone: from
+    there every face's approach point is still as reachable as before, but a turn is not."""
+    scenario = load_scenario("clean")
+    spec = scenario.object("eraser")
+    area = LearningArea(scenario.table, reach=default_map())
+    start, dead_zone = Pose2D(0.339, 0.125, 1.809), Pose2D(0.344, 0.074, 1.819)
+    lost = [p for p in (5, 6) if not default_map().reachable(ball_path_points(push_geometry(
+        spec.shape, spec.length, spec.width, spec.height, dead_zone, p))).all()]
+    assert lost, "the dead-zone pose must cost a turn for this test to say anything"
+    reason = area.problem(spec, start, dead_zone, primitive=2)
+    assert reason is not None and "out of the arm's reach" in reason
+    assert area.room(spec, dead_zone) < area.room(spec, start)
 
 
 def test_a_rotation_trial_must_leave_the_turn_undoable() -> None:

@@ -59,11 +59,8 @@ from tsrrt_common.geometry import (
     footprint_polygon,
     wrap_angle,
 )
-from tsrrt_common.robot_model import BALL_RADIUS
 from tsrrt_common.scenario import ObjectSpec, Scenario, Table
 from tsrrt_executor.push_primitives import (
-    APPROACH_CLEARANCE,
-    BACK_OFF,
     DEFAULT_PUSH_LENGTH,
     ball_path_is_clear,
     ball_path_points,
@@ -94,8 +91,8 @@ from tsrrt_planner.task_space_rrt import (
 
 # A repositioning push must gain at least this much room (m) to be worth a trial.
 REPOSITION_GAIN = 0.005
-# Room (m) a face out of the arm's reach costs: learning walks objects back into reach.
-UNREACHABLE_FACE_COST = 0.05
+# Room (m) a primitive out of the arm's reach costs: learning walks objects back into reach.
+UNREACHABLE_PUSH_COST = 0.05
 # Where the nominal push does not fit, a learning trial may be this fraction of it.
 LEARNING_PUSH_FRACTIONS = (1.0, 0.6, 0.4)
 # An object's own model with at least this many trials sets aside executed pushes it does not
@@ -188,16 +185,17 @@ class LearningArea:
     drift: float = 0.003
     reach: Reachability | None = None   # the arm's; no push may take a face out of it
 
-    def unreachable_faces(self, spec: ObjectSpec, pose: Pose2D) -> int:
-        """How many of the four faces' approach points (just off each face, where the ball
-        comes down) the arm cannot reach."""
+    def unreachable_pushes(self, spec: ObjectSpec, pose: Pose2D) -> int:
+        """How many of the object's primitives the arm cannot push at `pose`: some point of the
+        ball's path (approach, push, end) out of its reach. Rotations count as much as faces: a
+        clean demo's learning walked the eraser along its long axis into the base's dead zone,
+        every face still reachable but both turns and the push away from the base lost, and
+        the task ended 90 % above the bound with the eraser never pushed again."""
         if self.reach is None:
             return 0
-        offset = BALL_RADIUS + APPROACH_CLEARANCE + BACK_OFF   # ball centre where it lands
-        half_length, half_width = spec.length / 2.0 + offset, spec.width / 2.0 + offset
-        points = pose.transform_point_to_world(np.array([
-            [half_length, 0.0], [-half_length, 0.0], [0.0, half_width], [0.0, -half_width]]))
-        return int(np.count_nonzero(~self.reach.reachable(points)))
+        return sum(not self.reach.reachable(ball_path_points(push_geometry(
+            spec.shape, spec.length, spec.width, spec.height, pose, primitive,
+            table_height=self.table.height))).all() for primitive in primitives_for(spec.shape))
 
     def edge_distance(self, spec: ObjectSpec, pose: Pose2D) -> float:
         """Distance from the footprint to the nearest table edge (negative: overhanging)."""
@@ -208,11 +206,11 @@ class LearningArea:
 
     def room(self, spec: ObjectSpec, pose: Pose2D) -> float:
         """How far, beyond the margins, the object at `pose` is from the edge and the others,
-        less UNREACHABLE_FACE_COST per face the arm cannot push from there."""
+        less UNREACHABLE_PUSH_COST per primitive the arm cannot push from there."""
         room = self.edge_distance(spec, pose) - self.edge_margin
         for other, other_pose in self.others:
             room = min(room, footprint_gap(spec, pose, other, other_pose) - self.clearance)
-        return room - UNREACHABLE_FACE_COST * self.unreachable_faces(spec, pose)
+        return room - UNREACHABLE_PUSH_COST * self.unreachable_pushes(spec, pose)
 
     def turn_is_undoable(self, spec: ObjectSpec, primitive: int, pose: Pose2D) -> bool:
         """Whether the rotation primitive opposite to `primitive` (5 <-> 6) can be pushed on
@@ -235,9 +233,9 @@ class LearningArea:
         6 is out of reach, was left for planning 0.28 rad off square in the base's dead zone,
         and the task's first plans stalled 51-54 % above the bound.
         """
-        lost = self.unreachable_faces(spec, after) - self.unreachable_faces(spec, start)
+        lost = self.unreachable_pushes(spec, after) - self.unreachable_pushes(spec, start)
         if lost > 0:
-            return f"would take {lost} more face(s) out of the arm's reach"
+            return f"would take {lost} more primitive(s) out of the arm's reach"
         edge = self.edge_distance(spec, after)
         if edge < self.edge_margin and edge < self.edge_distance(spec, start) - self.drift:
             return (f"would end {edge * 100:.1f} cm from the table edge "
