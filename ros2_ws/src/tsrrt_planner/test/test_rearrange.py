@@ -184,6 +184,27 @@ def test_corridors_turn_on_the_way():
     assert blocks[eraser, remote] and blocks[scale, remote]   # the remote must turn past both
 
 
+def test_targets_touching_a_hair_inside_the_margin_leave_each_others_corridors_free():
+    """clean's lower bound as one process found it: the three boxes in a row, each pair of
+    targets 0.4 um inside the margin. Counted strictly, every touching pair blocked the other's
+    corridor and REARRANGE parked objects in circles (first plans 50-70 % above the bound)."""
+    scenario = load_scenario("clean")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    scale, remote, eraser = (problem.objects.ids.index(name)
+                             for name in ("scale", "remote", "eraser"))
+    target = np.zeros((3, 3))
+    target[[scale, remote, eraser]] = [[0.45, 0.0875, 0.0], [0.45, 0.0, 0.0],
+                                       [0.45, -0.0525, np.pi]]
+    inside = target.copy()
+    inside[[scale, eraser], 1] -= np.sign(inside[[scale, eraser], 1]) * 4e-7
+    assert problem.checker.constraint_values(inside).min() < 0.0   # a hair inside
+    # each object a few centimetres straight out from its slot: nothing crosses a way
+    state = target + np.array([[0.0, 0.05, 0.0], [0.06, 0.0, 0.0], [0.0, -0.05, 0.0]])[
+        [[scale, remote, eraser].index(i) for i in range(3)]]
+    for touching in (target, inside):
+        assert not corridor_blocks(problem, state, touching, [0, 1, 2]).any()
+
+
 def test_targets_on_an_edge_are_aimed_at_from_inside(problem):
     bound = lower_bound(problem, starts=2)
     inset = inset_from_edges(problem, bound.state, 0.002)
