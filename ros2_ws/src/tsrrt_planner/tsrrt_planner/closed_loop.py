@@ -183,7 +183,7 @@ class LearningArea:
     clearance: float = 0.01
     # Inside a margin, a push may lose this much (m) to drift without counting as worse.
     drift: float = 0.003
-    reach: Reachability | None = None   # the arm's; no push may take a face out of it
+    reach: Reachability | None = None   # the arm's; no push may take a primitive out of it
 
     def unreachable_pushes(self, spec: ObjectSpec, pose: Pose2D) -> int:
         """How many of the object's primitives the arm cannot push at `pose`: some point of the
