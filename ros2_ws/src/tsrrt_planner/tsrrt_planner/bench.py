@@ -45,6 +45,7 @@ from tsrrt_planner.errors import PlannerError  # noqa: E402
 from tsrrt_planner.lower_bound import lower_bound  # noqa: E402
 from tsrrt_planner.model_learning import ModelStore  # noqa: E402
 from tsrrt_planner.problem import PlanningProblem  # noqa: E402
+from tsrrt_planner.push_rule import assume_rule_where_uncovered  # noqa: E402
 from tsrrt_planner.task_space_rrt import MODES, TASK_SPACE_RRT, PlanResult  # noqa: E402
 
 OMPL_PLANNERS = ("ompl-sst", "ompl-rrt")
@@ -201,6 +202,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                          f"{args.start_jitter!r}")
     scenario = resolve_scenario(args.scenario)
     models = ModelStore.load(args.models or default_models(scenario))
+    assumed = assume_rule_where_uncovered(models, scenario.objects)
+    if assumed:
+        print(f"nothing learned covers {', '.join(assumed)}: planned with the push rule, as "
+              "planner_node does", flush=True)
     problem = PlanningProblem(scenario, models)
     bound = lower_bound(problem, starts=args.lb_starts)
     start_cost = float(problem.objective.cost(problem.start))

@@ -82,7 +82,7 @@ from tsrrt_planner.model_learning import (
 )
 from tsrrt_planner.objectives import build_objective
 from tsrrt_planner.problem import PlanningProblem, out_of_reach
-from tsrrt_planner.push_rule import rule_model
+from tsrrt_planner.push_rule import assume_rule_where_uncovered
 from tsrrt_planner.task_space_rrt import MODES, PlanResult
 
 # String parameters and their allowed values (numbers have ranges in their descriptors).
@@ -585,9 +585,7 @@ class PlannerNode(Node):
         bench's 26 %. A shutdown stops it."""
         try:
             rules = ModelStore()   # any models covering the objects: the bound ignores them
-            for spec in self.scenario.objects:
-                for primitive in primitives_for(spec.shape):
-                    rules.assume(rule_model(spec, primitive))
+            assume_rule_where_uncovered(rules, self.scenario.objects)
             problem = PlanningProblem(self.scenario, rules, self.reachability,
                                       margin=self._param("planning_margin"))
             self._lower_bound = lower_bound(problem, starts=self._param("lower_bound_starts"),
@@ -643,12 +641,7 @@ class PlannerNode(Node):
                                     every_primitive=False, borrow=True)
         except ModelFileError as error:
             raise GoalFailed(reason, str(error)) from None
-        assumed = []
-        for spec in objects:
-            for primitive in primitives_for(spec.shape):
-                if self.store.model_for(spec.id, spec.object_class, primitive) is None:
-                    self.store.assume(rule_model(spec, primitive))
-                    assumed.append(f"{spec.id} primitive {primitive}")
+        assumed = assume_rule_where_uncovered(self.store, objects)
         if assumed:
             self.get_logger().warning(
                 f"nothing learned covers {', '.join(assumed)}: planned with the physics-free "
