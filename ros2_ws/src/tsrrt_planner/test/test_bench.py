@@ -54,7 +54,7 @@ def test_the_bench_plans_every_planner_from_the_seed_s_jittered_start(tmp_path) 
 def test_primitives_nothing_learned_covers_are_planned_with_the_push_rule(tmp_path,
                                                                           capsys) -> None:
     """As planner_node plans them: without them, a demo's tset6 models (plate pushes blocked
-    while learning) left the bench 63-65 % above the bound, planner_node 3.6-21 %."""
+    while learning) left the bench 63-65 % above the bound; planned as the node does, 3.6-21 %."""
     scenario = resolve_scenario("clean")
     store = ModelStore.load(default_models(scenario))
     for primitive in (3, 4):   # a pair, so that neither is the other's mirror image

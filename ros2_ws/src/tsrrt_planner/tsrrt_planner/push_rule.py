@@ -91,7 +91,7 @@ def assume_rule_where_uncovered(store: ModelStore, objects: Sequence[ObjectSpec]
     while learning, and no class-mate or mirror partner has it) the rule's model, as the robot
     plans with it until the push is executed; returns "<id> primitive <p>" for each. Planned
     without them instead, the benchmark ended tset6 63-65 % above the bound with the models a
-    demo had learned (4 seeds), where planner_node's planning from the same models got 3.6-21 %."""
+    demo had learned (4 seeds); planned as planner_node does, 3.6-21 %."""
     assumed = []
     for spec in objects:
         for primitive in primitives_for(spec.shape):
