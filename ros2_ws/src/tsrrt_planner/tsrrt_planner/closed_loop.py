@@ -78,7 +78,7 @@ from tsrrt_planner.model_learning import (
     StoppingRule,
     learned,
 )
-from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.problem import PlanningProblem, push_in_reach
 from tsrrt_planner.push_rule import plausible_displacement, transfer_efficiency
 from tsrrt_planner.reachability import Reachability
 from tsrrt_planner.task_space_rrt import (
@@ -193,9 +193,9 @@ class LearningArea:
         the task ended 90 % above the bound with the eraser never pushed again."""
         if self.reach is None:
             return 0
-        return sum(not self.reach.reachable(ball_path_points(push_geometry(
-            spec.shape, spec.length, spec.width, spec.height, pose, primitive,
-            table_height=self.table.height))).all() for primitive in primitives_for(spec.shape))
+        return sum(not push_in_reach(spec, pose, primitive, self.reach,
+                                     table_height=self.table.height)
+                   for primitive in primitives_for(spec.shape))
 
     def edge_distance(self, spec: ObjectSpec, pose: Pose2D) -> float:
         """Distance from the footprint to the nearest table edge (negative: overhanging)."""

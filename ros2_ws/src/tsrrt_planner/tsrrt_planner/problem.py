@@ -34,6 +34,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from tsrrt_common.geometry import Pose2D
 from tsrrt_common.robot_model import BALL_RADIUS
 from tsrrt_common.scenario import ObjectSpec, Scenario
 from tsrrt_executor.push_primitives import (
@@ -66,17 +67,20 @@ def shortest_turn(delta_theta: np.ndarray, period: np.ndarray) -> np.ndarray:
     return np.where(period > 0, (delta_theta + safe / 2) % safe - safe / 2, 0.0)
 
 
+def push_in_reach(spec: ObjectSpec, pose: Pose2D, primitive: int, reachability: Reachability,
+                  push_length: float = DEFAULT_PUSH_LENGTH, table_height: float = 0.0) -> bool:
+    """Whether the arm reaches every ball position of the push, from the approach point to its
+    end (else the executor would answer UNREACHABLE)."""
+    geometry = push_geometry(spec.shape, spec.length, spec.width, spec.height, pose, primitive,
+                             push_length, table_height=table_height)
+    return bool(reachability.reachable(ball_path_points(geometry)).all())
+
+
 def out_of_reach(spec: ObjectSpec, reachability: Reachability,
                  table_height: float = 0.0) -> bool:
-    """True when the arm reaches no push of the object at `spec.pose`: for every primitive some
-    ball position from the approach point to the end of the shortest push is unreachable (the
-    executor would answer UNREACHABLE to each)."""
-    for primitive in primitives_for(spec.shape):
-        geometry = push_geometry(spec.shape, spec.length, spec.width, spec.height, spec.pose,
-                                 primitive, MIN_PUSH_LENGTH, table_height=table_height)
-        if reachability.reachable(ball_path_points(geometry)).all():
-            return False
-    return True
+    """True when the arm reaches no push of the object at `spec.pose`, not even the shortest."""
+    return not any(push_in_reach(spec, spec.pose, primitive, reachability, MIN_PUSH_LENGTH,
+                                 table_height) for primitive in primitives_for(spec.shape))
 
 
 def longest_push(models: ModelStore, spec: ObjectSpec) -> float:
