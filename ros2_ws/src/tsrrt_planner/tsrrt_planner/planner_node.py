@@ -27,6 +27,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -207,9 +208,7 @@ class PlannerNode(Node):
         self.models_path = Path(path) if path else default_models_path(self.scenario.name)
         self.store, self.store_problem = self._load_models()
         self.reachability = default_map()
-        self._lower_bound: LowerBound | None = None
-        self._bound_failure: Exception | None = None
-        self._bound_ready = threading.Event()
+        self._lower_bound: Future[LowerBound] = Future()
         threading.Thread(target=self._compute_bound, name="lower_bound", daemon=True).start()
         self.unreachable: set[str] = set()   # objects left where they stand: out of reach
         self._busy = threading.Lock()
@@ -588,25 +587,23 @@ class PlannerNode(Node):
             assume_rule_where_uncovered(rules, self.scenario.objects)
             problem = PlanningProblem(self.scenario, rules, self.reachability,
                                       margin=self._param("planning_margin"))
-            self._lower_bound = lower_bound(problem, starts=self._param("lower_bound_starts"),
-                                            cancel=shutting_down)
-        except Cancelled:
-            pass
-        except Exception as error:   # handed to the goal that needs the bound
-            self._bound_failure = error
-        finally:
-            self._bound_ready.set()
+            self._lower_bound.set_result(lower_bound(
+                problem, starts=self._param("lower_bound_starts"), cancel=shutting_down))
+        except Exception as error:   # Cancelled too: handed to the goal that needs the bound
+            self._lower_bound.set_exception(error)
 
     def _bound(self, cancelled: Callable[[], bool]) -> LowerBound:
         """The lower bound, waiting for the background computation while the goal lasts."""
-        while not self._bound_ready.wait(0.1):
-            if cancelled():
-                raise GoalFailed("CANCELED", "cancelled while the lower bound was computed")
-        if self._bound_failure is not None:
-            raise self._bound_failure
-        if self._lower_bound is None:
-            raise GoalFailed("CANCELED", "the lower bound was stopped by the shutdown")
-        return self._lower_bound
+        while True:
+            try:
+                return self._lower_bound.result(timeout=0.1)
+            except TimeoutError:
+                if cancelled():
+                    raise GoalFailed("CANCELED",
+                                     "cancelled while the lower bound was computed") from None
+            except Cancelled:
+                raise GoalFailed("CANCELED",
+                                 "the lower bound was stopped by the shutdown") from None
 
     def _settings(self, planner: str, budget_s: float, max_pushes: int = 0,
                   time_budget_s: float = 0.0, seed: int = -1) -> TaskSettings:
