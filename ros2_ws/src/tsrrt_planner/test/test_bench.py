@@ -1,4 +1,5 @@
-"""The benchmark's jittered starts: seeded, valid, within the jitter, shared by the planners."""
+"""The benchmark: jittered starts (seeded, valid, within the jitter, shared by the planners), the
+table."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from tsrrt_planner.bench import default_models, jittered_problem, main, resolve_scenario
+from tsrrt_planner.bench import default_models, jittered_problem, main, resolve_scenario, table
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import ModelStore
 
@@ -73,3 +74,26 @@ def test_primitives_nothing_learned_covers_are_planned_with_the_push_rule(tmp_pa
 def test_a_malformed_jitter_is_refused(value: str) -> None:
     with pytest.raises(SystemExit):
         main(["--scenario", "tset3", "--start-jitter", value])
+
+
+def _row(planner: str, gap: float | None, cost: float = -1.0) -> dict:
+    return {"planner": planner, "seed": 0, "time_to_5pct_s": None, "time_to_1pct_s": None,
+            "nodes_to_5pct": None, "nodes_to_1pct": None, "gap_at_1s": gap, "gap_final": gap,
+            "nodes_per_s": 10.0, "pushes": 5, "final_cost": cost}
+
+
+def test_the_table_counts_the_seeds_within_5_and_1_percent() -> None:
+    """A bimodal planner (three seeds near the bound, two far off) has a median that says
+    nothing of the two; the counts do."""
+    rows = [_row("tsrrt", gap) for gap in (0.004, 0.02, 0.03, 0.25, 0.55)]
+    header, _, line = (text.split() for text in table(rows, ["tsrrt"]).splitlines())
+    assert line[header.index("end<=5%")] == "3/5"
+    assert line[header.index("end<=1%")] == "1/5"
+    assert line[header.index("gap@end")] == "3.00%"
+
+
+def test_without_gaps_the_counts_are_not_applicable() -> None:
+    """Against a zero optimum (the obstacle task) there is no relative gap."""
+    header, _, line = (text.split() for text in
+                       table([_row("tsrrt", None, cost=0.002)], ["tsrrt"]).splitlines())
+    assert [line[header.index(key)] for key in ("end<=5%", "end<=1%")] == ["n/a", "n/a"]
