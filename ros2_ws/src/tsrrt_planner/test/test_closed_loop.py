@@ -650,6 +650,63 @@ def test_task_loop_replans_when_a_push_is_refused() -> None:
     assert report.pushes == 2   # the task went on after the refusal
 
 
+class _RobotRefusingOnePushWhereItStands(_SimulatedRobot):
+    """The executor refuses the first push it is sent, and the same push again whenever it is
+    sent from the same scene (every object within 1 mm): its check sees the same geometry."""
+
+    def __init__(self, scenario, seed: int) -> None:
+        super().__init__(scenario, seed)
+        self.refusals: list[tuple[str, int]] = []
+        self.refused_where: tuple[str, int, dict[str, Pose2D]] | None = None
+
+    def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        poses = self.observe()
+        if self.refused_where is None:
+            self.refused_where = (object_id, primitive, poses)
+        refused_id, refused_primitive, where = self.refused_where
+        same_scene = all(math.dist(poses[i].as_array()[:2], where[i].as_array()[:2]) < 0.001
+                         for i in poses)
+        if (object_id, primitive) == (refused_id, refused_primitive) and same_scene:
+            self.refusals.append((object_id, primitive))
+            raise ExecutionFailed(2, f"primitive {primitive} on {object_id!r}: the approach or "
+                                     "push path of the ball is blocked", blocked=True)
+        return super().execute(object_id, primitive, push_length)
+
+
+def test_a_refused_push_is_not_planned_again_from_the_scene_it_was_refused_in() -> None:
+    """A tset6 demo's replan put back the push the executor had refused two pushes before, from
+    the same scene to 0.3 mm, and it was refused again."""
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    problem = PlanningProblem(scenario, store, AnnulusReachability())
+    state = problem.start
+    lengths = np.full(len(problem.action_objects), 0.02)
+
+    def valid(at: np.ndarray, of: PlanningProblem = problem) -> np.ndarray:
+        return of.pushes_valid(at, problem.action_objects, problem.action_primitives, lengths)
+
+    before = valid(state)
+    k = int(np.argmax(before))
+    assert before[k]
+    problem.refuse(int(problem.action_objects[k]), int(problem.action_primitives[k]), state)
+    after = valid(state)
+    assert not after[k]
+    np.testing.assert_array_equal(np.delete(after, k), np.delete(before, k))
+    # 2 mm off, the same scene as the executor sees it; 1 cm off, the push is planned again
+    fresh = PlanningProblem(scenario, store, AnnulusReachability())
+    for offset, refused in ((0.002, True), (0.01, False)):
+        nearby = state.copy()
+        nearby[int(problem.action_objects[k]), 0] += offset
+        assert valid(nearby)[k] == (not refused and valid(nearby, fresh)[k])
+
+    robot = _RobotRefusingOnePushWhereItStands(scenario, seed=100)
+    bound = lower_bound(problem, starts=8, seed=0)
+    settings = TaskSettings(planning_budget_s=30.0, planning_max_nodes=300, max_pushes=2)
+    report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound.cost,
+                      target=bound.state)
+    assert len(robot.refusals) == 1 and report.replans == 1 and report.pushes == 2
+
+
 def test_task_loop_replans_after_a_push_stopped_part_way_and_stops_on_a_lost_object() -> None:
     scenario = load_scenario("tset3")
     store = learn_all(scenario.objects, seed=0)

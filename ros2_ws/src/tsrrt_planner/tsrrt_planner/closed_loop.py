@@ -547,7 +547,8 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
               replaced: tuple[PlanResult, int] | None = None,
               good_enough_cost: float | None = None,
               stall: StallRule | None = None, budget_s: float | None = None,
-              task_range: float = 0.0, extend_above_gap: float | None = None
+              task_range: float = 0.0, extend_above_gap: float | None = None,
+              refused: Sequence[tuple[str, int, Mapping[str, Pose2D]]] = ()
               ) -> tuple[PlanningProblem, PlanResult]:
     """TASK_SPACE_RRT from the observed state with the current models. A replan is given the
     plan it replaces and how many of its pushes were executed (`replaced`): the rest warm-starts
@@ -559,9 +560,13 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
     counts a smaller gain as none (`_negligible`), so pushes spent on it are wasted. With
     `extend_above_gap`, the search stops at settings.planning_budget_s if its best is within that
     gap of the lower bound by then (relative to |bound|, or to the start's distance from a zero
-    bound), else goes on until it is or `budget_s` ends (a task's first plan)."""
+    bound), else goes on until it is or `budget_s` ends (a task's first plan). Pushes the robot
+    `refused` (object id, primitive, the observed poses) are not planned again from there."""
     problem = PlanningProblem(scenario_at(scenario, poses), store, reachability,
                               margin=settings.margin)
+    for object_id, primitive, where in refused:
+        problem.refuse(problem.objects.ids.index(object_id), primitive,
+                       _state_of(problem, where))
     start_cost = float(problem.objective.cost(problem.start))
     scale = max(abs(start_cost), task_range)
     soft_deadline = None
@@ -605,6 +610,7 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
     observed = environment.observe()
     report.visited.append(observed)
     replaced: tuple[PlanResult, int] | None = None   # plan a replan replaces, pushes done
+    refusals: list[tuple[str, int, Mapping[str, Pose2D]]] = []   # pushes refused, and where
     while True:
         if cancelled():
             report.stop_reason = "cancelled"
@@ -643,7 +649,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                                     lower_bound_cost, target, cancelled, replaced=replaced,
                                     good_enough_cost=good_enough, stall=stall, budget_s=budget,
                                     task_range=task_range,
-                                    extend_above_gap=settings.first_plan_gap if first else None)
+                                    extend_above_gap=settings.first_plan_gap if first else None,
+                                    refused=refusals)
         replaced = None
         report.planning_s += result.elapsed_s
         on_plan(result)
@@ -712,6 +719,8 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                     return report
                 replaced = (result, k + 1)
                 observed = environment.observe()
+                if failure.blocked:
+                    refusals.append((step.object_id, step.primitive, observed))
                 on_event("replanning", report)
                 break
             report.pushes += 1

@@ -19,6 +19,8 @@ A push is valid when (all checked in `pushes_valid`, vectorised over candidates)
   use pushes the robot can do);
 * with a face allowance (`with_face_allowance`, the improved planner's), it does not leave more
   objects of a kind short of reachable faces than the target needs (see there).
+* the robot has not refused it before moving from (nearly) this state (`refuse`: the closed
+  loop marks such pushes, so that a replan does not send the same push again).
 Push geometry (contact point, direction, approach clearance) comes from the executor's
 tsrrt_executor.push_primitives so that planner and executor agree on it.
 
@@ -58,6 +60,12 @@ MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fi
 CONSISTENT_SIDE_STD = 0.003       # m, the executor's consistency target
 CONSISTENT_TURN_STD = math.radians(3.0)
 REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_executable samples
+# A refused push stays refused from states this close to the one it was refused in (every object
+# within REFUSED_RADIUS metres, the pushed one also within REFUSED_TURN radians): observations of a
+# still scene differ by well under a millimetre, and a plan that moved anything by more may have
+# cleared the way.
+REFUSED_RADIUS = 0.003
+REFUSED_TURN = math.radians(2.0)
 
 
 def shortest_turn(delta_theta: np.ndarray, period: np.ndarray) -> np.ndarray:
@@ -184,6 +192,8 @@ class PlanningProblem:
                                  * self.direction[:, :4])
         self.face_group = np.arange(self.n)
         self.face_allowance: np.ndarray | None = None
+        # (object index, primitive, state) of pushes the robot refused before moving
+        self.refused: list[tuple[int, int, np.ndarray]] = []
 
     def with_face_allowance(self, targets: Sequence[np.ndarray],
                             groups: Sequence[np.ndarray]) -> PlanningProblem:
@@ -210,6 +220,30 @@ class PlanningProblem:
                               for row in stranded])
         variant.face_allowance = per_group.min(axis=0)
         return variant
+
+    def refuse(self, object_index: int, primitive: int, state: np.ndarray) -> None:
+        """Mark a push the robot refused before moving in `state` (n, 3) invalid from states
+        within REFUSED_RADIUS of it. The executor checks the observed poses with its own
+        geometry: a tset6 demo's replan put back the push refused two pushes before, from the
+        same state to 0.3 mm, and it was refused again."""
+        self.refused.append((int(object_index), int(primitive), np.array(state, dtype=float)))
+
+    def _refused_here(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                      before: np.ndarray) -> np.ndarray:
+        """(k,) True for pushes refused from (nearly) this state (`refuse`)."""
+        refused = np.zeros(len(objects), bool)
+        for index, primitive, where in self.refused:
+            same = np.nonzero((objects == index) & (primitives == primitive))[0]
+            if len(same) == 0:
+                continue
+            others = np.arange(self.n) != index
+            if np.abs(state[others, :2] - where[others, :2]).max(initial=0.0) > REFUSED_RADIUS:
+                continue
+            moved = np.linalg.norm(before[same, :2] - where[index, :2], axis=1)
+            turned = np.abs(shortest_turn(before[same, 2] - where[index, 2],
+                                          self.angle_period[index]))
+            refused[same] |= (moved <= REFUSED_RADIUS) & (turned <= REFUSED_TURN)
+        return refused
 
     # ------------------------------------------------------------------ forward model
     def push_directions(self, state: np.ndarray, objects: np.ndarray,
@@ -252,6 +286,8 @@ class PlanningProblem:
         final = before + lengths[:, None] * u
         ok = (lengths <= self.max_lengths[objects] + 1e-9) & self.checker.moved_objects_valid(
             state, objects, final)
+        if self.refused:
+            ok &= ~self._refused_here(state, objects, primitives, before)
         if self.face_allowance is not None:
             alive = np.nonzero(ok)[0]
             ok[alive] = self.keeps_faces(state, objects[alive], before[alive], final[alive])
