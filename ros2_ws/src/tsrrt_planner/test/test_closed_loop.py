@@ -700,7 +700,7 @@ def test_a_refused_push_is_not_planned_again_from_the_scene_it_was_refused_in() 
         assert valid(nearby)[k] == (not refused and valid(nearby, fresh)[k])
 
     robot = _RobotRefusingOnePushWhereItStands(scenario, seed=100)
-    bound = lower_bound(problem, starts=8, seed=0)
+    bound = lower_bound(fresh, starts=8, seed=0)
     settings = TaskSettings(planning_budget_s=30.0, planning_max_nodes=300, max_pushes=2)
     report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound.cost,
                       target=bound.state)
