@@ -54,6 +54,10 @@ class ExecutorProbe:
         self.perceived = probe.record(ObjectStateArray, "/perception/objects", reliable)
         self.truths = probe.record(ObjectStateArray, "/sim/object_states", reliable)
         self.action = ActionClient(probe, ExecutePrimitive, "/executor/execute_primitive")
+        self.feedback_topic = probe.record(
+            ExecutePrimitive.Impl.FeedbackMessage,
+            "/executor/execute_primitive/_action/feedback",
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.arm = ActionClient(probe, FollowJointTrajectory,
                                 "/arm_controller/follow_joint_trajectory")
         self.disturb = probe.create_client(DisturbObject, "/sim/disturb_object")
@@ -65,16 +69,25 @@ class ExecutorProbe:
             feedback: list | None = None):
         """Execute one primitive; returns the result wrapper (status and result).
 
-        Feedback and the result travel on separate topics with no order between them: under
-        load (CI with a benchmark beside it) the settling feedback arrived after the result and
-        the phase check failed, so a successful goal waits up to 2 s for its last feedback."""
+        Feedback and the result travel on separate topics with no order between them, and
+        rclpy's action client drops a goal's feedback once its result is in: under load (CI with
+        a benchmark beside it) the settling feedback came after the result and was lost. So the
+        feedback is read from the action's feedback topic, waiting up to 5 s for the last one."""
         goal = ExecutePrimitive.Goal(object_id=object_id, primitive=primitive,
                                      push_length=push_length)
-        outcome = self.probe.execute(self.action, goal, feedback, timeout=120.0)
-        if feedback is not None and outcome.result.error_code == Result.SUCCESS:
-            self.probe.spin_until(lambda: any(
-                m.feedback.phase == Feedback.PHASE_SETTLING and m.feedback.progress >= 1.0
-                for m in feedback), 2.0)
+        handle = self.probe.send_goal(self.action, goal)
+        assert handle.accepted, "goal rejected"
+        outcome = self.probe.wait_for(handle.get_result_async(), 120.0)
+        if feedback is not None:
+            def of_this_goal() -> list:
+                return [m for m in self.feedback_topic if bytes(m.goal_id.uuid) ==
+                        bytes(handle.goal_id.uuid)]
+
+            if outcome.result.error_code == Result.SUCCESS:
+                self.probe.spin_until(lambda: any(
+                    m.feedback.phase == Feedback.PHASE_SETTLING and m.feedback.progress >= 1.0
+                    for m in of_this_goal()), 5.0)
+            feedback.extend(of_this_goal())
         return outcome
 
     def tracked(self, object_class: str, x: float, y: float, timeout: float = 60.0
