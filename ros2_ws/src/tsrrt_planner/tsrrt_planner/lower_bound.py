@@ -77,11 +77,15 @@ def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: i
 
 
 def random_state(problem: PlanningProblem, rng: np.random.Generator) -> np.ndarray:
-    """Uniform poses (n, 3) with every centre on the table (overlaps allowed)."""
+    """Uniform poses (n, 3) with every centre on the table (overlaps allowed). Discs get
+    heading 0, as everywhere in the planner: nothing turns them back (their heading costs
+    nothing), and a plate's optimum at a random heading in a corner near the base strands one of
+    its faces, which makes the face rule (`with_face_allowance`) let it lose one."""
     x_min, y_min, x_max, y_max = problem.scenario.table.bounds
     n = problem.n
     return np.column_stack([rng.uniform(x_min, x_max, n), rng.uniform(y_min, y_max, n),
-                            rng.uniform(-np.pi, np.pi, n)])
+                            np.where(problem.objects.is_disc, 0.0,
+                                     rng.uniform(-np.pi, np.pi, n))])
 
 
 @dataclass(frozen=True)
