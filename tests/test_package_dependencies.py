@@ -22,6 +22,7 @@ WORKSPACE_PACKAGES = {p.parent.name for p in SRC.glob("*/package.xml")}
 # the ROS package that ships them). A module missing here fails the test until it is added.
 ROSDEP_KEYS = {
     "numpy": "python3-numpy",
+    "numba": "python3-numba",
     "scipy": "python3-scipy",
     "yaml": "python3-yaml",
     "cv2": "python3-opencv",

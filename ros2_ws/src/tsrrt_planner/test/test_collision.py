@@ -7,7 +7,7 @@ import pytest
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import ObjectSpec, load_scenario
-from tsrrt_planner.collision import CollisionChecker, Shapes
+from tsrrt_planner.collision import CollisionChecker, Shapes, segment_footprint_distance
 from tsrrt_planner.objectives import ObjectSet
 
 SPACING = 0.0005
@@ -92,9 +92,7 @@ def test_segment_distance_matches_dense_sampling(seed):
         shape, half = random_shape(rng)
         pose = np.array([0.0, 0.0, rng.uniform(-np.pi, np.pi)])
         start, end = rng.uniform(-0.15, 0.15, 2), rng.uniform(-0.15, 0.15, 2)
-        objects = ObjectSet(("a",), ("x",), half[:1], half[1:], np.array([shape == "disc"]))
-        exact = Shapes(objects, []).segment_distance(start[None], end[None], np.array([0]),
-                                                     pose[None])[0]
+        exact = segment_footprint_distance(start, end, pose, half, shape == "disc")
         count = int(np.linalg.norm(end - start) / SPACING) + 2
         path = start + np.linspace(0, 1, count)[:, None] * (end - start)
         if inside(path, shape, half, pose).any():

@@ -67,7 +67,7 @@ from tsrrt_executor.push_primitives import (
     primitives_for,
     push_geometry,
 )
-from tsrrt_planner.collision import box_box_signed_distance, box_disc_signed_distance
+from tsrrt_planner.collision import footprint_signed_distance
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import (
     MIRROR_PARTNER,
@@ -156,17 +156,9 @@ class LearningResult:
 
 def footprint_gap(a: ObjectSpec, pose_a: Pose2D, b: ObjectSpec, pose_b: Pose2D) -> float:
     """Signed distance between two footprints (negative: overlapping), metres."""
-    if a.shape != "box" and b.shape == "box":
-        a, pose_a, b, pose_b = b, pose_b, a, pose_a
-    if a.shape == "box" and b.shape == "box":
-        return float(box_box_signed_distance(
-            pose_a.as_array()[None], np.array([[a.length, a.width]]) / 2.0,
-            pose_b.as_array()[None], np.array([[b.length, b.width]]) / 2.0)[0])
-    if a.shape == "box":
-        return float(box_disc_signed_distance(
-            pose_a.as_array()[None], np.array([[a.length, a.width]]) / 2.0,
-            np.array([[pose_b.x, pose_b.y]]), np.array([b.length / 2.0]))[0])
-    return math.hypot(pose_a.x - pose_b.x, pose_a.y - pose_b.y) - (a.length + b.length) / 2.0
+    return float(footprint_signed_distance(
+        pose_a.as_array(), np.array([a.length, a.width]) / 2.0, a.shape != "box",
+        pose_b.as_array(), np.array([b.length, b.width]) / 2.0, b.shape != "box"))
 
 
 @dataclass(frozen=True)

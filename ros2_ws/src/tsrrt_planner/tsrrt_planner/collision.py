@@ -1,6 +1,9 @@
 """Exact planar collision tests between oriented boxes, discs and the pusher's ball path.
 
-This is the planner's inner loop, so everything works on arrays of pairs at once:
+This is the planner's inner loop: a push is checked against every other footprint at several
+poses along its way, thousands of times a second. Each batch is a few dozen small arrays, too
+small for numpy to pay off (a vectorised version spent most of its time in per-call overhead),
+so the tests are scalar loops compiled by numba, with early exits:
 
 * box-box: separating-axis test on the four edge normals (exact for overlap); when separated,
   the distance is the smallest corner-to-box distance of either box (exact for disjoint convex
@@ -11,110 +14,225 @@ This is the planner's inner loop, so everything works on arrays of pairs at once
 
 Signed distances are positive when separated (the true Euclidean gap) and <= 0 when overlapping
 (for box-box the largest separating-axis gap, a continuous penetration measure). The table bound
-(Eq. 4) is that every footprint lies inside the table rectangle.
+(Eq. 4) is that every footprint lies inside the table rectangle. Pairs whose bounding circles are
+farther apart than the required gap skip the exact test.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
 
 from tsrrt_common.scenario import ObjectSpec
 from tsrrt_planner.objectives import ObjectSet, axis_aligned_half_extents
 
 _BIG = 1e9
+_CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
+# Compiled kernels are cached on disk (numba's __pycache__), so only a first run compiles.
+_kernel = njit(cache=True, nogil=True)
 
 
-def _rotation(theta: np.ndarray) -> np.ndarray:
-    """(..., 2, 2) rotation matrices, columns = the frame's x and y axes in the world."""
-    c, s = np.cos(theta), np.sin(theta)
-    rotation = np.empty((*np.shape(theta), 2, 2))
-    rotation[..., 0, 0], rotation[..., 0, 1] = c, -s
-    rotation[..., 1, 0], rotation[..., 1, 1] = s, c
-    return rotation
+@_kernel
+def _point_box(px: float, py: float, hx: float, hy: float) -> float:
+    """Signed distance of a point, given in a box's frame, to the box (half sizes hx, hy)."""
+    qx, qy = abs(px) - hx, abs(py) - hy
+    ox, oy = max(qx, 0.0), max(qy, 0.0)
+    return math.sqrt(ox * ox + oy * oy) + min(max(qx, qy), 0.0)
 
 
-def _to_frame(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """World points (P, m, 2) into the frames of poses (P, 3)."""
-    rotation = _rotation(pose[:, 2])
-    return np.einsum("pmi,pij->pmj", points - pose[:, None, :2], rotation)
+@_kernel
+def _corners_to_box(x: float, y: float, c: float, s: float, hx: float, hy: float,
+                    bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float) -> float:
+    """Smallest signed distance of box (x, y, cos, sin; half sizes)'s corners to box b."""
+    best = _BIG
+    for sx, sy in _CORNER_SIGNS:
+        lx, ly = sx * hx, sy * hy
+        dx, dy = x + c * lx - s * ly - bx, y + s * lx + c * ly - by
+        best = min(best, _point_box(dx * bc + dy * bs, -dx * bs + dy * bc, bhx, bhy))
+    return best
 
 
-def point_box_signed_distance(points: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """Signed distance of points (P, m, 2), given in a box's frame, to boxes with half sizes
-    (P, 2)."""
-    q = np.abs(points) - half[:, None, :]
-    outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
-    inside = np.minimum(q.max(axis=-1), 0.0)
-    return outside + inside
+@_kernel
+def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
+             bx: float, by: float, bt: float, bhx: float, bhy: float) -> float:
+    ac, as_, bc, bs = math.cos(at), math.sin(at), math.cos(bt), math.sin(bt)
+    dx, dy = bx - ax, by - ay
+    # Relative rotation: the projections of one box's axes on the other's.
+    cc, cs = abs(ac * bc + as_ * bs), abs(ac * bs - as_ * bc)
+    separating = max(abs(dx * ac + dy * as_) - ahx - (cc * bhx + cs * bhy),
+                     abs(-dx * as_ + dy * ac) - ahy - (cs * bhx + cc * bhy),
+                     abs(dx * bc + dy * bs) - bhx - (cc * ahx + cs * ahy),
+                     abs(-dx * bs + dy * bc) - bhy - (cs * ahx + cc * ahy))
+    if separating <= 0.0:
+        return separating
+    return min(_corners_to_box(ax, ay, ac, as_, ahx, ahy, bx, by, bc, bs, bhx, bhy),
+               _corners_to_box(bx, by, bc, bs, bhx, bhy, ax, ay, ac, as_, ahx, ahy))
 
 
-def _corners(pose: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """World corners (P, 4, 2) of boxes with poses (P, 3) and half sizes (P, 2)."""
-    signs = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
-    local = signs[None] * half[:, None, :]
-    return np.einsum("pij,pmj->pmi", _rotation(pose[:, 2]), local) + pose[:, None, :2]
+@_kernel
+def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy: float,
+              radius: float) -> float:
+    c, s = math.cos(t), math.sin(t)
+    dx, dy = cx - x, cy - y
+    return _point_box(dx * c + dy * s, -dx * s + dy * c, hx, hy) - radius
 
 
-def box_box_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, pose_b: np.ndarray,
-                            half_b: np.ndarray) -> np.ndarray:
-    """Signed distance (P,) between boxes with poses (P, 3) and half sizes (P, 2)."""
-    axes_a = _rotation(pose_a[:, 2])  # columns are the box axes
-    axes_b = _rotation(pose_b[:, 2])
-    axes = np.concatenate([np.swapaxes(axes_a, 1, 2), np.swapaxes(axes_b, 1, 2)], axis=1)
-    centre = pose_b[:, :2] - pose_a[:, :2]
-    radius_a = (np.abs(np.einsum("pkd,pdj->pkj", axes, axes_a)) * half_a[:, None, :]).sum(-1)
-    radius_b = (np.abs(np.einsum("pkd,pdj->pkj", axes, axes_b)) * half_b[:, None, :]).sum(-1)
-    gap = np.abs(np.einsum("pkd,pd->pk", axes, centre)) - radius_a - radius_b
-    separating = gap.max(axis=1)
-    corner_a_to_b = point_box_signed_distance(_to_frame(_corners(pose_a, half_a), pose_b), half_b)
-    corner_b_to_a = point_box_signed_distance(_to_frame(_corners(pose_b, half_b), pose_a), half_a)
-    corner = np.minimum(corner_a_to_b.min(axis=1), corner_b_to_a.min(axis=1))
-    return np.where(separating > 0.0, corner, separating)
+@_kernel
+def footprint_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, disc_a: bool,
+                              pose_b: np.ndarray, half_b: np.ndarray, disc_b: bool) -> float:
+    """Signed distance between footprints at poses (3,) with half sizes (2,) (a disc's radius
+    is half[0])."""
+    if disc_a and disc_b:
+        return (math.hypot(pose_a[0] - pose_b[0], pose_a[1] - pose_b[1])
+                - half_a[0] - half_b[0])
+    if disc_b:
+        return _box_disc(pose_a[0], pose_a[1], pose_a[2], half_a[0], half_a[1],
+                         pose_b[0], pose_b[1], half_b[0])
+    if disc_a:
+        return _box_disc(pose_b[0], pose_b[1], pose_b[2], half_b[0], half_b[1],
+                         pose_a[0], pose_a[1], half_a[0])
+    return _box_box(pose_a[0], pose_a[1], pose_a[2], half_a[0], half_a[1],
+                    pose_b[0], pose_b[1], pose_b[2], half_b[0], half_b[1])
 
 
-def box_disc_signed_distance(pose_box: np.ndarray, half_box: np.ndarray, centre: np.ndarray,
-                             radius: np.ndarray) -> np.ndarray:
-    """Signed distance (P,) between boxes (P, 3)/(P, 2) and discs with centres (P, 2)."""
-    local = _to_frame(centre[:, None, :], pose_box)
-    return point_box_signed_distance(local, half_box)[:, 0] - radius
+@_kernel
+def _segment_point(sx: float, sy: float, ex: float, ey: float, px: float, py: float) -> float:
+    dx, dy = ex - sx, ey - sy
+    t = min(max(((px - sx) * dx + (py - sy) * dy) / max(dx * dx + dy * dy, 1e-18), 0.0), 1.0)
+    return math.hypot(sx + t * dx - px, sy + t * dy - py)
 
 
-def segment_box_distance(start: np.ndarray, end: np.ndarray, pose_box: np.ndarray,
-                         half_box: np.ndarray) -> np.ndarray:
-    """Distance (P,) from segments start-end (P, 2) to boxes; 0 when they intersect."""
-    ends = _to_frame(np.stack([start, end], axis=1), pose_box)  # (P, 2, 2)
-    p0, direction = ends[:, 0], ends[:, 1] - ends[:, 0]
-    endpoint = np.maximum(point_box_signed_distance(ends, half_box).min(axis=1), 0.0)
-    corners = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])[None] * half_box[
-        :, None, :]
-    length_sq = np.maximum((direction**2).sum(-1), 1e-18)
-    t = np.clip(np.einsum("pmd,pd->pm", corners - p0[:, None], direction) / length_sq[:, None],
-                0.0, 1.0)
-    nearest = p0[:, None] + t[..., None] * direction[:, None]
-    corner = np.linalg.norm(corners - nearest, axis=-1).min(axis=1)
-    # Slab test: does the segment pass through the box?
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inverse = np.where(np.abs(direction) > 1e-15, 1.0 / direction, _BIG)
-        t1 = (-half_box - p0) * inverse
-        t2 = (half_box - p0) * inverse
-    inside_slab = np.abs(p0) <= half_box
-    t_low = np.where(np.abs(direction) > 1e-15, np.minimum(t1, t2),
-                     np.where(inside_slab, -_BIG, _BIG))
-    t_high = np.where(np.abs(direction) > 1e-15, np.maximum(t1, t2),
-                      np.where(inside_slab, _BIG, -_BIG))
-    enter, leave = t_low.max(axis=1), t_high.min(axis=1)
-    crosses = (enter <= leave) & (leave >= 0.0) & (enter <= 1.0)
-    return np.where(crosses, 0.0, np.minimum(endpoint, corner))
+@_kernel
+def _slab(p: float, d: float, h: float) -> tuple[float, float]:
+    """Parameter interval in which the line p + t d lies within [-h, h]."""
+    if abs(d) > 1e-15:
+        t1, t2 = (-h - p) / d, (h - p) / d
+        return min(t1, t2), max(t1, t2)
+    return (-_BIG, _BIG) if abs(p) <= h else (_BIG, -_BIG)
 
 
-def segment_point_distance(start: np.ndarray, end: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """Distance (P,) from segments (P, 2)-(P, 2) to points (P, 2)."""
-    direction = end - start
-    length_sq = np.maximum((direction**2).sum(-1), 1e-18)
-    t = np.clip(((point - start) * direction).sum(-1) / length_sq, 0.0, 1.0)
-    return np.linalg.norm(start + t[:, None] * direction - point, axis=-1)
+@_kernel
+def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float, t: float,
+                 hx: float, hy: float) -> float:
+    """Distance from segment s-e to a box; 0 when they intersect."""
+    c, s = math.cos(t), math.sin(t)
+    p0x, p0y = (sx - x) * c + (sy - y) * s, -(sx - x) * s + (sy - y) * c
+    p1x, p1y = (ex - x) * c + (ey - y) * s, -(ex - x) * s + (ey - y) * c
+    dx, dy = p1x - p0x, p1y - p0y
+    low_x, high_x = _slab(p0x, dx, hx)
+    low_y, high_y = _slab(p0y, dy, hy)
+    enter, leave = max(low_x, low_y), min(high_x, high_y)
+    if enter <= leave and leave >= 0.0 and enter <= 1.0:
+        return 0.0
+    best = max(min(_point_box(p0x, p0y, hx, hy), _point_box(p1x, p1y, hx, hy)), 0.0)
+    for sx_, sy_ in _CORNER_SIGNS:
+        best = min(best, _segment_point(p0x, p0y, p1x, p1y, sx_ * hx, sy_ * hy))
+    return best
+
+
+@_kernel
+def segment_footprint_distance(start: np.ndarray, end: np.ndarray, pose: np.ndarray,
+                               half: np.ndarray, disc: bool) -> float:
+    """Distance from segment start-end (2,) to a footprint; 0 when they intersect."""
+    if disc:
+        return max(_segment_point(start[0], start[1], end[0], end[1], pose[0], pose[1])
+                   - half[0], 0.0)
+    return _segment_box(start[0], start[1], end[0], end[1], pose[0], pose[1], pose[2],
+                        half[0], half[1])
+
+
+@_kernel
+def _pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
+                    poses_b: np.ndarray, half: np.ndarray, is_disc: np.ndarray) -> np.ndarray:
+    result = np.empty(len(rows_a))
+    for i in range(len(rows_a)):
+        a, b = rows_a[i], rows_b[i]
+        result[i] = footprint_signed_distance(poses_a[i], half[a], is_disc[a], poses_b[i],
+                                              half[b], is_disc[b])
+    return result
+
+
+@_kernel
+def _pose_clear(obj: int, pose: np.ndarray, parent: np.ndarray, half: np.ndarray,
+                is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
+                pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
+                bounds: np.ndarray, table_allowance: np.ndarray) -> bool:
+    """Object `obj` at `pose`, the others as in `parent`: on the table and clear of all."""
+    if is_disc[obj]:
+        hx = hy = half[obj, 0]
+    else:
+        c, s = abs(math.cos(pose[2])), abs(math.sin(pose[2]))
+        hx, hy = c * half[obj, 0] + s * half[obj, 1], s * half[obj, 0] + c * half[obj, 1]
+    allowance = table_allowance[obj]
+    if (pose[0] - hx - bounds[0] + allowance[0] < 0.0
+            or bounds[2] - pose[0] - hx + allowance[1] < 0.0
+            or pose[1] - hy - bounds[1] + allowance[2] < 0.0
+            or bounds[3] - pose[1] - hy + allowance[3] < 0.0):
+        return False
+    n = len(parent)
+    for row in range(n + len(obstacle_poses)):
+        if row == obj:
+            continue
+        other = parent[row] if row < n else obstacle_poses[row - n]
+        reach = bounding[obj] + bounding[row] + margin
+        if (pose[0] - other[0]) ** 2 + (pose[1] - other[1]) ** 2 > reach * reach:
+            continue
+        allowed = pair_allowance[obj, row] if row < n else obstacle_allowance[obj, row - n]
+        if footprint_signed_distance(pose, half[obj], is_disc[obj], other, half[row],
+                                     is_disc[row]) < margin - allowed:
+            return False
+    return True
+
+
+@_kernel
+def _swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray,
+                       change: np.ndarray, steps: np.ndarray, half: np.ndarray,
+                       is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
+                       pair_allowance: np.ndarray, obstacle_allowance: np.ndarray,
+                       margin: float, bounds: np.ndarray, table_allowance: np.ndarray
+                       ) -> np.ndarray:
+    """(k,) True where object moved[i] is clear at before[i] + (j / steps[i]) change[i] for
+    every j = 1..steps[i] (the last is the end pose)."""
+    ok = np.ones(len(moved), np.bool_)
+    pose = np.empty(3)
+    for i in range(len(moved)):
+        count = max(steps[i], 1)
+        for j in range(count, 0, -1):          # the end pose first: it fails most often
+            fraction = j / count
+            for d in range(3):
+                pose[d] = before[i, d] + fraction * change[i, d]
+            if not _pose_clear(moved[i], pose, parent, half, is_disc, bounding, obstacle_poses,
+                               pair_allowance, obstacle_allowance, margin, bounds,
+                               table_allowance):
+                ok[i] = False
+                break
+    return ok
+
+
+@_kernel
+def _ball_paths_clear(parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
+                      end: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                      bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float
+                      ) -> np.ndarray:
+    ok = np.ones(len(pushed), np.bool_)
+    n = len(parent)
+    for i in range(len(pushed)):
+        for row in range(n + len(obstacle_poses)):
+            if row == pushed[i]:
+                continue
+            other = parent[row] if row < n else obstacle_poses[row - n]
+            # a segment farther from a centre than the bounding circle plus clearance is clear
+            if (_segment_point(start[i, 0], start[i, 1], end[i, 0], end[i, 1], other[0],
+                               other[1]) > bounding[row] + clearance):
+                continue
+            if segment_footprint_distance(start[i], end[i], other, half[row],
+                                          is_disc[row]) < clearance:
+                ok[i] = False
+                break
+    return ok
 
 
 class Shapes:
@@ -135,53 +253,17 @@ class Shapes:
         self.bounding_radius = np.where(self.is_disc, self.half[:, 0],
                                         np.hypot(self.half[:, 0], self.half[:, 1]))
 
-    def pairs_apart(self, rows_a: np.ndarray, centres_a: np.ndarray, rows_b: np.ndarray,
-                    centres_b: np.ndarray, gap: float) -> np.ndarray:
-        """(P,) True where the bounding circles alone prove the footprints at least `gap`
-        apart, so the exact test can be skipped."""
-        reach = self.bounding_radius[rows_a] + self.bounding_radius[rows_b] + gap
-        return ((centres_a - centres_b) ** 2).sum(-1) > reach**2
-
     def pair_signed_distance(self, rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
                              poses_b: np.ndarray) -> np.ndarray:
         """Signed distance (P,) between shapes rows_a (P,) at poses_a (P, 3) and rows_b/poses_b."""
-        result = np.empty(len(rows_a))
-        disc_a, disc_b = self.is_disc[rows_a], self.is_disc[rows_b]
-        half_a, half_b = self.half[rows_a], self.half[rows_b]
-        both_box = ~disc_a & ~disc_b
-        if both_box.any():
-            result[both_box] = box_box_signed_distance(poses_a[both_box], half_a[both_box],
-                                                       poses_b[both_box], half_b[both_box])
-        both_disc = disc_a & disc_b
-        if both_disc.any():
-            result[both_disc] = (np.linalg.norm(poses_a[both_disc, :2] - poses_b[both_disc, :2],
-                                                axis=-1)
-                                 - half_a[both_disc, 0] - half_b[both_disc, 0])
-        box_first = ~disc_a & disc_b
-        if box_first.any():
-            result[box_first] = box_disc_signed_distance(
-                poses_a[box_first], half_a[box_first], poses_b[box_first, :2],
-                half_b[box_first, 0])
-        disc_first = disc_a & ~disc_b
-        if disc_first.any():
-            result[disc_first] = box_disc_signed_distance(
-                poses_b[disc_first], half_b[disc_first], poses_a[disc_first, :2],
-                half_a[disc_first, 0])
-        return result
+        return _pair_distances(np.asarray(rows_a, np.int64), _floats(poses_a),
+                               np.asarray(rows_b, np.int64), _floats(poses_b), self.half,
+                               self.is_disc)
 
-    def segment_distance(self, start: np.ndarray, end: np.ndarray, rows: np.ndarray,
-                         poses: np.ndarray) -> np.ndarray:
-        """Distance (P,) from segments (P, 2)-(P, 2) to shapes rows (P,) at poses (P, 3)."""
-        result = np.empty(len(rows))
-        disc = self.is_disc[rows]
-        if disc.any():
-            result[disc] = np.maximum(segment_point_distance(
-                start[disc], end[disc], poses[disc, :2]) - self.half[rows[disc], 0], 0.0)
-        box = ~disc
-        if box.any():
-            result[box] = segment_box_distance(start[box], end[box], poses[box],
-                                               self.half[rows[box]])
-        return result
+
+def _floats(array: np.ndarray) -> np.ndarray:
+    """A C-contiguous float64 array, as the kernels' compiled signatures expect."""
+    return np.ascontiguousarray(array, dtype=np.float64)
 
 
 class CollisionChecker:
@@ -202,6 +284,7 @@ class CollisionChecker:
         self.objects = objects
         self.shapes = Shapes(objects, obstacles)
         self.table_bounds = tuple(float(b) for b in table_bounds)
+        self._bounds = np.array(self.table_bounds)
         self.margin = margin
         self.ball_margin = ball_margin
         n, m = len(objects), len(obstacles)
@@ -214,6 +297,11 @@ class CollisionChecker:
         self.pair_allowance = np.zeros((n, n))
         self.obstacle_allowance = np.zeros((n, m))
         self.table_allowance = np.zeros((n, 4))
+        # Compile the kernels (or load them from numba's cache) now, not in the first plan.
+        no_rows = np.zeros(0, np.int64)
+        self.moved_objects_valid(np.zeros((n, 3)), no_rows, np.zeros((0, 3)))
+        self.ball_paths_clear(np.zeros((n, 3)), no_rows, np.zeros((0, 2)), np.zeros((0, 2)), 0.0)
+        self.shapes.pair_signed_distance(no_rows, np.zeros((0, 3)), no_rows, np.zeros((0, 3)))
 
     def tolerate(self, state: np.ndarray) -> tuple[float, float]:
         """Accept the violations of `state` (n, 3) but no deeper ones.
@@ -315,38 +403,19 @@ class CollisionChecker:
             moved: (k,) index of the moved object of each candidate.
             poses: (k, 3) new pose of that object.
         """
-        k, n = len(moved), self.n
-        table = (self.table_clearances_rows(moved, poses) + self.table_allowance[moved]).min(
-            axis=1) >= 0.0
-        others = np.broadcast_to(np.arange(n), (k, n))
-        keep = others != moved[:, None]
-        cand = np.broadcast_to(np.arange(k)[:, None], (k, n))[keep]
-        rows_b = others[keep]
-        ok = table.copy()
-        if n > 1:
-            ok &= self._moved_pairs_clear(k, cand, moved[cand], poses[cand], rows_b,
-                                          parent[rows_b], self.pair_allowance[moved[cand], rows_b])
-        if self.m:
-            cand_o = np.repeat(np.arange(k), self.m)
-            rows_o = np.tile(np.arange(n, n + self.m), k)
-            ok &= self._moved_pairs_clear(k, cand_o, moved[cand_o], poses[cand_o], rows_o,
-                                          self.shapes.obstacle_poses[rows_o - n],
-                                          self.obstacle_allowance[moved[cand_o], rows_o - n])
-        return ok
+        return self.swept_valid(parent, moved, poses, np.zeros((len(poses), 3)),
+                                np.ones(len(poses), np.int64))
 
-    def _moved_pairs_clear(self, k: int, cand: np.ndarray, rows_a: np.ndarray,
-                           poses_a: np.ndarray, rows_b: np.ndarray, poses_b: np.ndarray,
-                           allowance: np.ndarray) -> np.ndarray:
-        """(k,) True for candidates whose pairs (cand (P,) -> candidate) all keep the margin
-        less `allowance` (P,); exact tests only for pairs the bounding circles cannot clear."""
-        near = np.nonzero(~self.shapes.pairs_apart(rows_a, poses_a[:, :2], rows_b,
-                                                   poses_b[:, :2], self.margin))[0]
-        if len(near) == 0:
-            return np.ones(k, bool)
-        gap = self.shapes.pair_signed_distance(rows_a[near], poses_a[near], rows_b[near],
-                                               poses_b[near])
-        blocked = gap < self.margin - allowance[near]
-        return np.bincount(cand[near], weights=blocked, minlength=k) == 0
+    def swept_valid(self, parent: np.ndarray, moved: np.ndarray, start: np.ndarray,
+                    change: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """(k,) validity of k objects moving in straight lines (in x, y, theta) from poses
+        `start` (k, 3) by `change` (k, 3), checked at `steps` (k,) evenly spaced poses after the
+        start, the end included (a push's path among the other objects)."""
+        return _swept_poses_clear(
+            _floats(parent), np.asarray(moved, np.int64), _floats(start), _floats(change),
+            np.asarray(steps, np.int64), self.shapes.half, self.shapes.is_disc,
+            self.shapes.bounding_radius, self.shapes.obstacle_poses, self.pair_allowance,
+            self.obstacle_allowance, self.margin, self._bounds, self.table_allowance)
 
     def table_clearances_rows(self, rows: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """Table clearances (k, 4) of objects `rows` (k,) at poses (k, 3)."""
@@ -361,20 +430,7 @@ class CollisionChecker:
                          end: np.ndarray, radius: float) -> np.ndarray:
         """(k,) True when the ball (radius) moving start->end (k, 2) keeps ball_margin from every
         object except the pushed one (k,) and from the obstacles, in state `parent` (n, 3)."""
-        k, n = len(pushed), self.n
-        rows_all = np.arange(n + self.m)
-        poses_all = np.concatenate([parent, self.shapes.obstacle_poses])
-        keep = rows_all[None, :] != pushed[:, None]
-        cand = np.broadcast_to(np.arange(k)[:, None], keep.shape)[keep]
-        rows = np.broadcast_to(rows_all, keep.shape)[keep]
-        if len(rows) == 0:
-            return np.ones(k, bool)
-        clearance = radius + self.ball_margin
-        # a segment farther from a centre than the bounding circle plus clearance is clear
-        centre_gap = segment_point_distance(start[cand], end[cand], poses_all[rows, :2])
-        near = np.nonzero(centre_gap <= self.shapes.bounding_radius[rows] + clearance)[0]
-        if len(near) == 0:
-            return np.ones(k, bool)
-        cand, rows = cand[near], rows[near]
-        gap = self.shapes.segment_distance(start[cand], end[cand], rows, poses_all[rows])
-        return np.bincount(cand, weights=gap < clearance, minlength=k) == 0
+        return _ball_paths_clear(_floats(parent), np.asarray(pushed, np.int64), _floats(start),
+                                 _floats(end), self.shapes.half, self.shapes.is_disc,
+                                 self.shapes.bounding_radius, self.shapes.obstacle_poses,
+                                 radius + self.ball_margin)

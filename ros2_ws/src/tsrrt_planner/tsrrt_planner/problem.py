@@ -283,26 +283,20 @@ class PlanningProblem:
             return np.zeros(0, bool)
         before = state[objects] if poses is None else poses
         u = self.push_directions(state, objects, primitives, before)
-        final = before + lengths[:, None] * u
-        ok = (lengths <= self.max_lengths[objects] + 1e-9) & self.checker.moved_objects_valid(
-            state, objects, final)
+        ok = lengths <= self.max_lengths[objects] + 1e-9
         if self.refused:
             ok &= ~self._refused_here(state, objects, primitives, before)
-        if self.face_allowance is not None:
-            alive = np.nonzero(ok)[0]
-            ok[alive] = self.keeps_faces(state, objects[alive], before[alive], final[alive])
-        # intermediate poses, every max_substep of travel
+        # the pushed object's way, checked every max_substep of travel
         travel = lengths * np.maximum(np.linalg.norm(u[:, :2], axis=1),
                                       np.abs(u[:, 2]) * self.objects.half_length[objects])
-        steps = np.ceil(travel / self.max_substep).astype(int)
-        needs = np.nonzero(ok & (steps > 1))[0]
-        if len(needs):
-            rows = np.repeat(needs, steps[needs] - 1)
-            fractions = np.concatenate([np.arange(1, s) / s for s in steps[needs]])
-            middle = before[rows] + (fractions * lengths[rows])[:, None] * u[rows]
-            mid_ok = self.checker.moved_objects_valid(state, objects[rows], middle)
-            ok[needs] &= np.bincount(np.searchsorted(needs, rows), weights=~mid_ok,
-                                     minlength=len(needs)) == 0
+        steps = np.ceil(travel / self.max_substep).astype(np.int64)
+        alive = np.nonzero(ok)[0]
+        ok[alive] = self.checker.swept_valid(state, objects[alive], before[alive],
+                                             lengths[alive, None] * u[alive], steps[alive])
+        if self.face_allowance is not None:
+            alive = np.nonzero(ok)[0]
+            ok[alive] = self.keeps_faces(state, objects[alive], before[alive],
+                                         before[alive] + lengths[alive, None] * u[alive])
         alive = np.nonzero(ok)[0]
         if len(alive):
             start, end = self.ball_path(state, objects[alive], primitives[alive], lengths[alive],
@@ -315,11 +309,11 @@ class PlanningProblem:
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start
         from an approach point the arm reaches."""
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        c, s = np.cos(poses[:, 2:]), np.sin(poses[:, 2:])             # (k, 1)
         offsets = self.approach_offsets[objects]                       # (k, 4, 2)
-        approach = poses[:, None, :2] + np.stack(
-            [c[:, None] * offsets[..., 0] - s[:, None] * offsets[..., 1],
-             s[:, None] * offsets[..., 0] + c[:, None] * offsets[..., 1]], axis=-1)
+        approach = np.empty_like(offsets)
+        approach[..., 0] = poses[:, :1] + c * offsets[..., 0] - s * offsets[..., 1]
+        approach[..., 1] = poses[:, 1:2] + s * offsets[..., 0] + c * offsets[..., 1]
         reach = self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(objects), 4)
         return (reach & self.available[objects, :4]).sum(axis=1)
 
@@ -360,11 +354,13 @@ class PlanningProblem:
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Ball-centre approach and end points (k, 2) in the world, as the executor moves it."""
         before = state[objects] if poses is None else poses
-        theta = before[:, 2]
-        c, s = np.cos(theta), np.sin(theta)
-        rotation = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (k, 2, 2)
-        contact = np.einsum("kij,kj->ki", rotation, self.contact[objects, primitives - 1])
-        direction = np.einsum("kij,kj->ki", rotation, self.direction[objects, primitives - 1])
+        c, s = np.cos(before[:, 2:]), np.sin(before[:, 2:])           # (k, 1)
+        local_contact = self.contact[objects, primitives - 1]          # (k, 2), object frame
+        local_direction = self.direction[objects, primitives - 1]
+        contact = np.hstack([c * local_contact[:, :1] - s * local_contact[:, 1:],
+                             s * local_contact[:, :1] + c * local_contact[:, 1:]])
+        direction = np.hstack([c * local_direction[:, :1] - s * local_direction[:, 1:],
+                               s * local_direction[:, :1] + c * local_direction[:, 1:]])
         touch = before[:, :2] + contact - BALL_RADIUS * direction
         return touch - APPROACH_CLEARANCE * direction, touch + lengths[:, None] * direction
 
