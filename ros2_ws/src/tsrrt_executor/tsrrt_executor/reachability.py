@@ -39,7 +39,7 @@ import sys
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -78,23 +78,28 @@ class ReachabilityMap:
 
     def is_reachable(self, points_xy: np.ndarray) -> np.ndarray:
         """Reachable-with-margin flags (N,) for points (N, 2); False outside the grid."""
-        return self._lookup(self.grid, points_xy)
+        return self._lookup(self._cells[0], points_xy)
 
     def is_executable(self, points_xy: np.ndarray) -> np.ndarray:
         """Flags (N,) for points (N, 2) the IK reaches, margin or not; False outside the grid."""
-        return self._lookup(self.ik_grid, points_xy)
+        return self._lookup(self._cells[1], points_xy)
 
-    def _lookup(self, grid: np.ndarray, points_xy: np.ndarray) -> np.ndarray:
-        """A point counts only if all four grid nodes around it do."""
-        points = np.atleast_2d(np.asarray(points_xy, dtype=float))
-        ny, nx = grid.shape
-        col = np.floor((points[:, 0] - self.x0) / self.step + 1e-9).astype(int)
-        row = np.floor((points[:, 1] - self.y0) / self.step + 1e-9).astype(int)
-        inside = (col >= 0) & (col < nx - 1) & (row >= 0) & (row < ny - 1)
-        col_c, row_c = np.clip(col, 0, nx - 2), np.clip(row, 0, ny - 2)
-        corners = (grid[row_c, col_c] & grid[row_c, col_c + 1] & grid[row_c + 1, col_c]
-                   & grid[row_c + 1, col_c + 1])
-        return inside & corners
+    @cached_property
+    def _cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per grid cell (ny - 1, nx - 1), of `grid` and of `ik_grid`: a point in the cell counts
+        only if all four grid nodes around it do. Precomputed: the planner looks up thousands of
+        points a second."""
+        return tuple(grid[:-1, :-1] & grid[:-1, 1:] & grid[1:, :-1] & grid[1:, 1:]
+                     for grid in (self.grid, self.ik_grid))
+
+    def _lookup(self, cells: np.ndarray, points_xy: np.ndarray) -> np.ndarray:
+        points = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+        col = np.floor((points[:, 0] - self.x0) / self.step + 1e-9)
+        row = np.floor((points[:, 1] - self.y0) / self.step + 1e-9)
+        inside = (col >= 0) & (col < cells.shape[1]) & (row >= 0) & (row < cells.shape[0])
+        result = np.zeros(len(points), bool)
+        result[inside] = cells[row[inside].astype(int), col[inside].astype(int)]
+        return result
 
     def reachable(self, points_xy: np.ndarray) -> np.ndarray:
         """Same as is_reachable; the name tsrrt_planner's Reachability protocol expects."""

@@ -64,27 +64,34 @@ def object_error(problem: PlanningProblem, index: int, poses: np.ndarray, goal: 
 
 
 def _candidate_pushes(problem: PlanningProblem, state: np.ndarray, index: int,
-                      pose: np.ndarray, goal: np.ndarray, weight: float
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Primitives and lengths (k,) to try on object `index` at `pose` (3,): for every primitive,
-    the length that brings it closest to `goal` (closed form, the pose being affine in the
-    length) and half of it, plus fixed detour lengths."""
+                      poses: np.ndarray, goal: np.ndarray, weight: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pushes to try on object `index` from each of `poses` (b, 3): for every primitive, the
+    length that brings it closest to `goal` (closed form, the pose being affine in the length)
+    and half of it, plus fixed detour lengths.
+
+    Returns:
+        rows (k,) into `poses`, primitives (k,) and lengths (k,).
+    """
     primitives = problem.action_primitives[problem.action_objects == index]
-    objects = np.full(len(primitives), index)
-    u = problem.push_directions(state, objects, primitives,
-                                np.repeat(pose[None], len(primitives), 0))  # (p, 3)
-    error = goal - pose
+    count, kinds = len(poses), len(primitives)
+    u = problem.push_directions(state, np.full(count * kinds, index), np.tile(primitives, count),
+                                np.repeat(poses, kinds, 0)).reshape(count, kinds, 3)
+    error = goal[None] - poses
     period = problem.angle_period[index]
-    error[2] = (error[2] + period / 2) % period - period / 2 if period > 0 else 0.0
+    error[:, 2] = (error[:, 2] + period / 2) % period - period / 2 if period > 0 else 0.0
     w2 = np.array([1.0, 1.0, weight**2])
-    ideal = (u * error * w2).sum(1) / np.maximum((u * u * w2).sum(1), 1e-12)
+    ideal = ((u * error[:, None] * w2).sum(-1)
+             / np.maximum((u * u * w2).sum(-1), 1e-12))               # (b, p)
     longest = problem.max_lengths[index]
-    steer = np.clip(np.outer(ideal, STEER_FRACTIONS), 0.0, longest)
+    steer = np.clip(ideal[..., None] * STEER_FRACTIONS, 0.0, longest)
     detours = np.unique(np.minimum(FIXED_LENGTHS, longest))  # one 5 cm push, not two
-    fixed = np.broadcast_to(detours, (len(primitives), len(detours)))
-    lengths = np.concatenate([steer, fixed], axis=1)  # (p, m)
+    lengths = np.concatenate(
+        [steer, np.broadcast_to(detours, (count, kinds, len(detours)))], axis=-1)  # (b, p, m)
     keep = lengths >= problem.min_length
-    return np.broadcast_to(primitives[:, None], lengths.shape)[keep], lengths[keep]
+    rows = np.broadcast_to(np.arange(count)[:, None, None], lengths.shape)
+    return (rows[keep], np.broadcast_to(primitives[None, :, None], lengths.shape)[keep],
+            lengths[keep])
 
 
 def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: np.ndarray,
@@ -115,12 +122,10 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
         tick()
         nodes = [heapq.heappop(queue)[1] for _ in range(min(batch, len(queue)))]
         expansions += len(nodes)
-        parts = [_candidate_pushes(problem, state, index, poses[node], goal, weight)
-                 for node in nodes]
-        owner = np.concatenate([np.full(len(part[0]), node) for node, part in
-                                zip(nodes, parts, strict=True)])
-        primitives = np.concatenate([part[0] for part in parts])
-        lengths = np.concatenate([part[1] for part in parts])
+        rows, primitives, lengths = _candidate_pushes(problem, state, index,
+                                                      np.array([poses[node] for node in nodes]),
+                                                      goal, weight)
+        owner = np.array(nodes)[rows]
         before = np.array(poses)[owner]
         objects = np.full(len(primitives), index)
         new = problem.predict(state, objects, primitives, lengths, before)
