@@ -723,6 +723,40 @@ def test_task_loop_replans_after_a_push_stopped_part_way_and_stops_on_a_lost_obj
                  AnnulusReachability(), settings, bound.cost, target=bound.state)
 
 
+def test_a_replan_aims_at_the_best_any_plan_of_the_task_promised(monkeypatch) -> None:
+    """Plans (scripted) whose first push always diverges: the first promises 0.5 below the
+    start, the replan after it only 0.1. The next replan may stop (`good_enough_cost`) only near
+    the first promise, not near the second, which the observed state could already meet."""
+    import tsrrt_planner.closed_loop as closed_loop
+    from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
+
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    robot = _SimulatedRobot(scenario, seed=1)
+    problem = PlanningProblem(scenario, store, AnnulusReachability())
+    now = float(problem.objective.cost(problem.start))
+    gains = iter([0.5, 0.1])
+    aims: list[float | None] = []
+
+    def scripted_plan_from(scenario_, poses, *args, **kwargs):
+        aims.append(kwargs.get("good_enough_cost"))
+        gain = next(gains, 0.0)
+        steps = (PlanStep("platter_1", 3, 0.05),) if gain else ()
+        # predicted states that stand still: the executed push diverges from them
+        states = np.stack([problem.start] * (len(steps) + 1))
+        costs = np.array([now] + [now - gain] * len(steps))
+        return problem, PlanResult("tsrrt", 0, steps, states, costs, 1, 0.0, (), "time")
+
+    monkeypatch.setattr(closed_loop, "plan_from", scripted_plan_from)
+    monkeypatch.setattr(closed_loop, "execution_noise_cost", lambda *args: 0.0)
+    report = run_task(scenario, store, robot, AnnulusReachability(), TaskSettings(), -1.0)
+    assert report.replans == 2 and len(aims) == 3
+    assert aims[0] is None
+    best = now - 0.5
+    assert aims[1] == pytest.approx(best + 0.01 * abs(best))
+    assert aims[2] == pytest.approx(best + 0.01 * abs(best))
+
+
 def test_a_plan_that_detours_for_less_than_its_errors_cost_is_not_executed(monkeypatch) -> None:
     """A plan that parks an object (cost up by 10 times its gain) to win less than its pushes'
     errors cost is not executed: the task stops. The same plan winning more than its errors
