@@ -195,3 +195,18 @@ def test_tolerated_start_violations_may_shrink_but_never_deepen():
     # A valid state tolerates nothing.
     assert checker_for(specs, margin=0.005).tolerate(start + [[0, 0, 0], [0.1, 0, 0],
                                                               [0.05, 0, 0]]) == (0.0, 0.0)
+
+
+def test_swept_valid_checks_the_way_not_only_the_end():
+    # a pushes a 10-cm disc from x 0.2 to 0.6 through b at x 0.4; both ends are clear of b
+    specs = [spec("a", "cylinder", 0.1, 0.1), spec("b", "cylinder", 0.1, 0.1)]
+    checker = checker_for(specs, margin=0.005)
+    parent = np.array([[0.2, 0.5, 0.0], [0.4, 0.5, 0.0]])
+    start, change = np.array([[0.2, 0.5, 0.0]]), np.array([[0.4, 0.0, 0.0]])
+    moved = np.array([0])
+    assert checker.moved_objects_valid(parent, moved, start + change)[0]
+    assert checker.swept_valid(parent, moved, start, change, np.array([1]))[0]
+    assert not checker.swept_valid(parent, moved, start, change, np.array([40]))[0]
+    # a way that moves away from b is clear at any resolution
+    away = np.array([[0.4, 0.12, 0.0]])
+    assert checker.swept_valid(parent, moved, start, away - start, np.array([40]))[0]
