@@ -242,7 +242,6 @@ class Shapes:
     """
 
     def __init__(self, objects: ObjectSet, obstacles: Sequence[ObjectSpec]) -> None:
-        self.n_movable = len(objects)
         self.half = np.concatenate([
             np.column_stack([objects.half_length, objects.half_width]),
             np.array([[o.length / 2.0, o.width / 2.0] for o in obstacles]).reshape(-1, 2)])
