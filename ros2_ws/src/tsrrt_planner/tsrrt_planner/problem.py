@@ -68,6 +68,15 @@ REFUSED_RADIUS = 0.003
 REFUSED_TURN = math.radians(2.0)
 
 
+def _to_world(c: np.ndarray, s: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Vectors `local` (..., 2) given in frames whose headings have cosines c and sines s
+    (broadcast against local[..., 0]), in the world frame."""
+    world = np.empty_like(local)
+    world[..., 0] = c * local[..., 0] - s * local[..., 1]
+    world[..., 1] = s * local[..., 0] + c * local[..., 1]
+    return world
+
+
 def shortest_turn(delta_theta: np.ndarray, period: np.ndarray) -> np.ndarray:
     """Heading differences reduced to the shortest turn modulo `period` (broadcast with them;
     a period of 0, a disc's, turns by nothing)."""
@@ -255,9 +264,9 @@ class PlanningProblem:
         `state`) go in one batch."""
         rate = self.rates[objects, primitives - 1]  # (k, 3)
         theta = (state[objects] if poses is None else poses)[:, 2]
-        c, s = np.cos(theta), np.sin(theta)
-        return np.column_stack([c * rate[:, 0] - s * rate[:, 1], s * rate[:, 0] + c * rate[:, 1],
-                                rate[:, 2]])
+        u = rate.copy()
+        u[:, :2] = _to_world(np.cos(theta), np.sin(theta), rate[:, :2])
+        return u
 
     def predict(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                 lengths: np.ndarray, poses: np.ndarray | None = None) -> np.ndarray:
@@ -290,13 +299,14 @@ class PlanningProblem:
         travel = lengths * np.maximum(np.linalg.norm(u[:, :2], axis=1),
                                       np.abs(u[:, 2]) * self.objects.half_length[objects])
         steps = np.ceil(travel / self.max_substep).astype(np.int64)
+        change = lengths[:, None] * u
         alive = np.nonzero(ok)[0]
         ok[alive] = self.checker.swept_valid(state, objects[alive], before[alive],
-                                             lengths[alive, None] * u[alive], steps[alive])
+                                             change[alive], steps[alive])
         if self.face_allowance is not None:
             alive = np.nonzero(ok)[0]
             ok[alive] = self.keeps_faces(state, objects[alive], before[alive],
-                                         before[alive] + lengths[alive, None] * u[alive])
+                                         before[alive] + change[alive])
         alive = np.nonzero(ok)[0]
         if len(alive):
             start, end = self.ball_path(state, objects[alive], primitives[alive], lengths[alive],
@@ -309,11 +319,8 @@ class PlanningProblem:
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start
         from an approach point the arm reaches."""
-        c, s = np.cos(poses[:, 2:]), np.sin(poses[:, 2:])             # (k, 1)
-        offsets = self.approach_offsets[objects]                       # (k, 4, 2)
-        approach = np.empty_like(offsets)
-        approach[..., 0] = poses[:, :1] + c * offsets[..., 0] - s * offsets[..., 1]
-        approach[..., 1] = poses[:, 1:2] + s * offsets[..., 0] + c * offsets[..., 1]
+        approach = poses[:, None, :2] + _to_world(                     # (k, 4, 2)
+            np.cos(poses[:, 2:]), np.sin(poses[:, 2:]), self.approach_offsets[objects])
         reach = self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(objects), 4)
         return (reach & self.available[objects, :4]).sum(axis=1)
 
@@ -354,13 +361,9 @@ class PlanningProblem:
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Ball-centre approach and end points (k, 2) in the world, as the executor moves it."""
         before = state[objects] if poses is None else poses
-        c, s = np.cos(before[:, 2:]), np.sin(before[:, 2:])           # (k, 1)
-        local_contact = self.contact[objects, primitives - 1]          # (k, 2), object frame
-        local_direction = self.direction[objects, primitives - 1]
-        contact = np.hstack([c * local_contact[:, :1] - s * local_contact[:, 1:],
-                             s * local_contact[:, :1] + c * local_contact[:, 1:]])
-        direction = np.hstack([c * local_direction[:, :1] - s * local_direction[:, 1:],
-                               s * local_direction[:, :1] + c * local_direction[:, 1:]])
+        c, s = np.cos(before[:, 2]), np.sin(before[:, 2])
+        contact = _to_world(c, s, self.contact[objects, primitives - 1])
+        direction = _to_world(c, s, self.direction[objects, primitives - 1])
         touch = before[:, :2] + contact - BALL_RADIUS * direction
         return touch - APPROACH_CLEARANCE * direction, touch + lengths[:, None] * direction
 
