@@ -173,21 +173,31 @@ class TaskGraph:
         return float(self.objective.cost(state))
 
     def disturb(self, object_id: str, dx: float, dy: float, dtheta: float = 0.0) -> str:
-        response = self.probe.call(self.disturb_client, DisturbObject.Request(
-            object_id=object_id, dx=dx, dy=dy, dtheta=dtheta))
+        response = self._disturb(object_id, dx, dy, dtheta)
         assert response.success, response.message
         return response.message
+
+    def _disturb(self, object_id: str, dx: float, dy: float,
+                 dtheta: float = 0.0) -> DisturbObject.Response:
+        return self.probe.call(self.disturb_client, DisturbObject.Request(
+            object_id=object_id, dx=dx, dy=dy, dtheta=dtheta))
 
     def bump_an_idle_object(self, pushes_done: int, distance: float = 0.03) -> str:
         """Bump the object the push under way is not for (the step after `pushes_done` of the
         latest plan, valid until the first replan) `distance` along its length, as a knock on
-        the table would; a bump of the pushed object would also be folded into its model."""
+        the table would; a bump of the pushed object would also be folded into its model.
+        Forward along its length, or backward where forward would put it off the table (a plan
+        had turned the remote 45 degrees near the far edge, and the simulator refused)."""
         steps = self.plans[-1].steps if self.plans else []
         busy = steps[min(pushes_done, len(steps) - 1)].object_id if steps else ""
         object_id = next(o.id for o in self.scenario.objects
                          if o.id != busy and o.shape == "box")
         theta = self.fresh_truth()[object_id].theta
-        return self.disturb(object_id, distance * np.cos(theta), distance * np.sin(theta))
+        for along in (distance, -distance):
+            response = self._disturb(object_id, along * np.cos(theta), along * np.sin(theta))
+            if response.success:
+                return response.message
+        raise AssertionError(response.message)
 
     def wait_until_perceived(self, timeout: float = 60.0) -> tuple[dict, dict]:
         """Wait until perception's poses match ground truth (within 5 mm): after a bump or a
