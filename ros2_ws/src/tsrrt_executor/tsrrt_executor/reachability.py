@@ -105,6 +105,12 @@ class ReachabilityMap:
         """Same as is_reachable; the name tsrrt_planner's Reachability protocol expects."""
         return self.is_reachable(points_xy)
 
+    def reach_cells(self) -> tuple[float, float, float, np.ndarray]:
+        """(x0, y0, step, cells) of is_reachable, for lookups compiled elsewhere (the planner's
+        GridReachability): a point is reachable iff it lies in the grid and
+        cells[floor((y - y0) / step + 1e-9), floor((x - x0) / step + 1e-9)]."""
+        return self.x0, self.y0, self.step, self._cells[0]
+
     def covers_height(self, z: float, table_height: float = 0.0) -> bool:
         return min(self.heights) - 1e-9 <= z - table_height <= max(self.heights) + 1e-9
 

@@ -10,6 +10,7 @@ from tsrrt_executor.reachability import default_map
 from tsrrt_planner.lower_bound import lower_bound
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
+from tsrrt_planner.reachability import segments_reached
 from tsrrt_planner.rearrange import (
     blockers_of,
     corridor_blocks,
@@ -48,6 +49,51 @@ def test_push_needs_the_whole_ball_path_reachable(problem):
     assert reach(start)[0] and reach(end)[0] and not reach(np.array([[0.27, 0.0]]))[0]
     assert not problem.path_reachable(start, end)[0]
     assert problem.path_reachable(np.array([[0.45, 0.1]]), np.array([[0.45, -0.1]]))[0]
+
+
+class _OpaqueReach:
+    """The executor's map behind the bare Reachability protocol: no grid to compile against."""
+
+    def __init__(self, grid) -> None:
+        self.grid = grid
+
+    def reachable(self, points: np.ndarray) -> np.ndarray:
+        return self.grid.reachable(points)
+
+
+def test_compiled_reach_lookups_agree_with_the_map(problem):
+    """The grid lookups compiled for the planner answer as the map itself and as the numpy
+    checks of any other reach model (faces, ball paths, whole pushes with the face rule)."""
+    rng = np.random.default_rng(5)
+    points = np.column_stack([rng.uniform(0.05, 0.9, 20000), rng.uniform(-0.6, 0.6, 20000)])
+    x0, y0, step, cells = problem.reach_cells
+    np.testing.assert_array_equal(segments_reached(points, points, 1.0, x0, y0, step, cells),
+                                  problem.reachability.reachable(points))
+    plain = PlanningProblem(problem.scenario, learn_all(problem.scenario.objects, seed=0),
+                            _OpaqueReach(problem.reachability))
+    assert problem.reach_cells is not None and plain.reach_cells is None
+    targets = [lower_bound(problem, starts=2, seed=0).state]
+    groups = [np.array([i]) for i in range(problem.n)]
+    compiled = problem.with_face_allowance(targets, groups)
+    generic = plain.with_face_allowance(targets, groups)
+    objects = np.arange(problem.n)
+    checked = 0
+    for _ in range(40):
+        state = problem.start + rng.normal(0, [0.04, 0.04, 0.4], problem.start.shape)
+        np.testing.assert_array_equal(compiled.reachable_faces(objects, state),
+                                      generic.reachable_faces(objects, state))
+        pushed = rng.integers(0, problem.n, 200)
+        primitives = np.where(problem.objects.is_disc[pushed], rng.integers(1, 5, 200),
+                              rng.integers(1, 7, 200))
+        lengths = rng.uniform(0.002, 0.1, 200)
+        start, end = problem.ball_path(state, pushed, primitives, lengths)
+        np.testing.assert_array_equal(compiled.path_reachable(start, end),
+                                      generic.path_reachable(start, end))
+        valid = compiled.pushes_valid(state, pushed, primitives, lengths)
+        np.testing.assert_array_equal(valid, generic.pushes_valid(state, pushed, primitives,
+                                                                  lengths))
+        checked += valid.sum()
+    assert checked > 100
 
 
 def test_pushes_from_given_poses_match_pushes_from_the_state(problem):

@@ -32,10 +32,10 @@ from tsrrt_planner.objectives import ObjectSet, axis_aligned_half_extents
 _BIG = 1e9
 _CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
 # Compiled kernels are cached on disk (numba's __pycache__), so only a first run compiles.
-_kernel = njit(cache=True, nogil=True)
+kernel = njit(cache=True, nogil=True)
 
 
-@_kernel
+@kernel
 def _point_box(px: float, py: float, hx: float, hy: float) -> float:
     """Signed distance of a point, given in a box's frame, to the box (half sizes hx, hy)."""
     qx, qy = abs(px) - hx, abs(py) - hy
@@ -43,7 +43,7 @@ def _point_box(px: float, py: float, hx: float, hy: float) -> float:
     return math.sqrt(ox * ox + oy * oy) + min(max(qx, qy), 0.0)
 
 
-@_kernel
+@kernel
 def _corners_to_box(x: float, y: float, c: float, s: float, hx: float, hy: float,
                     bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float) -> float:
     """Smallest signed distance of box (x, y, cos, sin; half sizes)'s corners to box b."""
@@ -55,7 +55,7 @@ def _corners_to_box(x: float, y: float, c: float, s: float, hx: float, hy: float
     return best
 
 
-@_kernel
+@kernel
 def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
              bx: float, by: float, bt: float, bhx: float, bhy: float) -> float:
     ac, as_, bc, bs = math.cos(at), math.sin(at), math.cos(bt), math.sin(bt)
@@ -72,7 +72,7 @@ def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
                _corners_to_box(bx, by, bc, bs, bhx, bhy, ax, ay, ac, as_, ahx, ahy))
 
 
-@_kernel
+@kernel
 def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy: float,
               radius: float) -> float:
     c, s = math.cos(t), math.sin(t)
@@ -80,7 +80,7 @@ def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy:
     return _point_box(dx * c + dy * s, -dx * s + dy * c, hx, hy) - radius
 
 
-@_kernel
+@kernel
 def footprint_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, disc_a: bool,
                               pose_b: np.ndarray, half_b: np.ndarray, disc_b: bool) -> float:
     """Signed distance between footprints at poses (3,) with half sizes (2,) (a disc's radius
@@ -98,14 +98,14 @@ def footprint_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, disc_a: bo
                     pose_b[0], pose_b[1], pose_b[2], half_b[0], half_b[1])
 
 
-@_kernel
+@kernel
 def _segment_point(sx: float, sy: float, ex: float, ey: float, px: float, py: float) -> float:
     dx, dy = ex - sx, ey - sy
     t = min(max(((px - sx) * dx + (py - sy) * dy) / max(dx * dx + dy * dy, 1e-18), 0.0), 1.0)
     return math.hypot(sx + t * dx - px, sy + t * dy - py)
 
 
-@_kernel
+@kernel
 def _slab(p: float, d: float, h: float) -> tuple[float, float]:
     """Parameter interval in which the line p + t d lies within [-h, h]."""
     if abs(d) > 1e-15:
@@ -114,7 +114,7 @@ def _slab(p: float, d: float, h: float) -> tuple[float, float]:
     return (-_BIG, _BIG) if abs(p) <= h else (_BIG, -_BIG)
 
 
-@_kernel
+@kernel
 def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float, t: float,
                  hx: float, hy: float) -> float:
     """Distance from segment s-e to a box; 0 when they intersect."""
@@ -133,7 +133,7 @@ def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float,
     return best
 
 
-@_kernel
+@kernel
 def segment_footprint_distance(start: np.ndarray, end: np.ndarray, pose: np.ndarray,
                                half: np.ndarray, disc: bool) -> float:
     """Distance from segment start-end (2,) to a footprint; 0 when they intersect."""
@@ -144,7 +144,7 @@ def segment_footprint_distance(start: np.ndarray, end: np.ndarray, pose: np.ndar
                         half[0], half[1])
 
 
-@_kernel
+@kernel
 def _pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
                     poses_b: np.ndarray, half: np.ndarray, is_disc: np.ndarray) -> np.ndarray:
     result = np.empty(len(rows_a))
@@ -155,7 +155,7 @@ def _pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
     return result
 
 
-@_kernel
+@kernel
 def _pose_clear(obj: int, pose: np.ndarray, parent: np.ndarray, half: np.ndarray,
                 is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
                 pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
@@ -187,7 +187,7 @@ def _pose_clear(obj: int, pose: np.ndarray, parent: np.ndarray, half: np.ndarray
     return True
 
 
-@_kernel
+@kernel
 def _swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray,
                        change: np.ndarray, steps: np.ndarray, half: np.ndarray,
                        is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
@@ -212,7 +212,7 @@ def _swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray
     return ok
 
 
-@_kernel
+@kernel
 def _ball_paths_clear(parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
                       end: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
                       bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float

@@ -52,7 +52,12 @@ from tsrrt_planner.collision import CollisionChecker
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import MIN_PUSH_LENGTH, ModelStore
 from tsrrt_planner.objectives import Objective, ObjectSet, build_objective
-from tsrrt_planner.reachability import Reachability
+from tsrrt_planner.reachability import (
+    GridReachability,
+    Reachability,
+    faces_reached,
+    segments_reached,
+)
 
 MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fitted at 0.05
 # An object whose translation pushes at the learned length scatter less than this (std of the
@@ -150,6 +155,9 @@ class PlanningProblem:
         self.checker = CollisionChecker(self.objects, scenario.obstacles, scenario.table.bounds,
                                         margin=margin, ball_margin=ball_margin)
         self.reachability = reachability if reachability is not None else default_map()
+        # a grid reach model is looked up by compiled loops (reachability.py)
+        self.reach_cells = (self.reachability.reach_cells()
+                            if isinstance(self.reachability, GridReachability) else None)
         self.max_substep = max_substep
         models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects
                              if not out_of_reach(o, self.reachability, scenario.table.height)],
@@ -319,6 +327,9 @@ class PlanningProblem:
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start
         from an approach point the arm reaches."""
+        if self.reach_cells is not None:
+            return faces_reached(np.asarray(objects, np.int64), np.asarray(poses, float),
+                                 self.approach_offsets, self.available[:, :4], *self.reach_cells)
         approach = poses[:, None, :2] + _to_world(                     # (k, 4, 2)
             np.cos(poses[:, 2:]), np.sin(poses[:, 2:]), self.approach_offsets[objects])
         reach = self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(objects), 4)
@@ -347,14 +358,22 @@ class PlanningProblem:
 
     def path_reachable(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """(k,) True when the arm reaches every point of the ball paths start-end (k, 2),
-        sampled at most REACH_SPACING apart as the executor checks them (the reachable region
-        is not convex near the base, so both ends reachable does not make the middle so)."""
-        count = max(2, math.ceil(float(np.linalg.norm(end - start, axis=1).max(initial=0.0))
-                                 / REACH_SPACING) + 1)
-        fractions = np.linspace(0.0, 1.0, count)[None, :, None]
-        points = start[:, None] + fractions * (end - start)[:, None]  # (k, count, 2)
-        return self.reachability.reachable(points.reshape(-1, 2)).reshape(len(start),
-                                                                          count).all(axis=1)
+        each sampled evenly at most REACH_SPACING apart as the executor checks it (the reachable
+        region is not convex near the base, so both ends reachable does not make the middle
+        so)."""
+        if self.reach_cells is not None:
+            return segments_reached(np.asarray(start, float), np.asarray(end, float),
+                                    REACH_SPACING, *self.reach_cells)
+        if len(start) == 0:
+            return np.zeros(0, bool)
+        delta = end - start
+        counts = np.maximum(2, np.ceil(np.sqrt(delta[:, 0] ** 2 + delta[:, 1] ** 2)
+                                       / REACH_SPACING).astype(np.int64) + 1)
+        firsts = np.cumsum(counts) - counts
+        owner = np.repeat(np.arange(len(start)), counts)
+        fractions = (np.arange(counts.sum()) - firsts[owner]) / (counts[owner] - 1)
+        points = start[owner] + fractions[:, None] * delta[owner]
+        return np.logical_and.reduceat(self.reachability.reachable(points), firsts)
 
     def ball_path(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                   lengths: np.ndarray, poses: np.ndarray | None = None

@@ -7,15 +7,21 @@ robot really has. AnnulusReachability is a simple stand-in for tests and what-if
 close and the elbow folds into the base, too far and the arm is stretched flat; its radii are a
 guess, not a computed workspace (the real near limit is not a circle: x >= 0.33 m straight
 ahead, x >= 0.25 m at |y| = 0.2 m).
+
+A reach model that is a grid of cells (`GridReachability`, as the executor's is) is looked up by
+compiled loops (`faces_reached`, `segments_reached`): the planner asks about a few dozen points
+at a time, thousands of times a second, and numpy's per-call overhead was most of the cost.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from tsrrt_planner.collision import kernel
 from tsrrt_planner.errors import PlannerError
 
 
@@ -25,6 +31,63 @@ class Reachability(Protocol):
     def reachable(self, points: np.ndarray) -> np.ndarray:
         """(k,) bool for points (k, 2) in the base frame."""
         ...
+
+
+@runtime_checkable
+class GridReachability(Reachability, Protocol):
+    """A reach model that is a grid of cells, so compiled checks can look points up."""
+
+    def reach_cells(self) -> tuple[float, float, float, np.ndarray]:
+        """(x0, y0, step, cells (rows, cols) bool): (x, y) is reachable iff it lies in the
+        grid and cells[floor((y - y0) / step + 1e-9), floor((x - x0) / step + 1e-9)]."""
+        ...
+
+
+@kernel
+def _cell_reachable(x: float, y: float, x0: float, y0: float, step: float,
+                    cells: np.ndarray) -> bool:
+    col = math.floor((x - x0) / step + 1e-9)
+    row = math.floor((y - y0) / step + 1e-9)
+    if col < 0 or row < 0 or col >= cells.shape[1] or row >= cells.shape[0]:
+        return False
+    return cells[row, col]
+
+
+@kernel
+def faces_reached(objects: np.ndarray, poses: np.ndarray, offsets: np.ndarray,
+                  available: np.ndarray, x0: float, y0: float, step: float,
+                  cells: np.ndarray) -> np.ndarray:
+    """(k,) how many faces f of objects (k,) at poses (k, 3) are available[object, f] and have
+    their approach point, offsets[object, f] (object frame), in reach."""
+    count = np.zeros(len(objects), np.int64)
+    for i in range(len(objects)):
+        c, s = math.cos(poses[i, 2]), math.sin(poses[i, 2])
+        for f in range(offsets.shape[1]):
+            if not available[objects[i], f]:
+                continue
+            ox, oy = offsets[objects[i], f, 0], offsets[objects[i], f, 1]
+            if _cell_reachable(poses[i, 0] + (c * ox - s * oy), poses[i, 1] + (s * ox + c * oy),
+                               x0, y0, step, cells):
+                count[i] += 1
+    return count
+
+
+@kernel
+def segments_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: float, y0: float,
+                     step: float, cells: np.ndarray) -> np.ndarray:
+    """(k,) True where every point of the segment start-end (k, 2), sampled evenly at most
+    `spacing` apart (ends included), is in reach."""
+    ok = np.ones(len(start), np.bool_)
+    for i in range(len(start)):
+        dx, dy = end[i, 0] - start[i, 0], end[i, 1] - start[i, 1]
+        count = max(2, math.ceil(math.sqrt(dx * dx + dy * dy) / spacing) + 1)
+        for j in range(count):
+            fraction = j / (count - 1)
+            if not _cell_reachable(start[i, 0] + fraction * dx, start[i, 1] + fraction * dy,
+                                   x0, y0, step, cells):
+                ok[i] = False
+                break
+    return ok
 
 
 @dataclass(frozen=True)
