@@ -25,16 +25,18 @@ it is applied to, so a path added to the tree is consistent with the models and 
 from __future__ import annotations
 
 import heapq
+import math
 from collections.abc import Callable
 
 import numpy as np
 
+from tsrrt_planner.collision import kernel
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 
 Push = tuple[int, int, float]  # (object index, primitive, push length)
 PATH_PUSH_COST = 0.01   # metres of remaining error one extra push is worth (weighted A*)
 KEY_RESOLUTION = 0.002  # metres (and weighted radians) of the duplicate-pose grid
-STEER_FRACTIONS = (1.0, 0.5)  # closed-form push length and half of it
+STEER_FRACTIONS = np.array([1.0, 0.5])  # closed-form push length and half of it
 FIXED_LENGTHS = (0.01, 0.03, 0.06, 0.10)  # detour pushes of fixed length
 PARKING_SPREAD = 0.08  # metres: spread of parking poses sampled around the object
 BALL_ROOM = 0.04  # metres around an object the pusher needs (ball, approach, margins)
@@ -63,35 +65,61 @@ def object_error(problem: PlanningProblem, index: int, poses: np.ndarray, goal: 
     return np.sqrt(delta[:, 0] ** 2 + delta[:, 1] ** 2 + (weight * angle) ** 2)
 
 
-def _candidate_pushes(problem: PlanningProblem, state: np.ndarray, index: int,
-                      poses: np.ndarray, goal: np.ndarray, weight: float
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pushes to try on object `index` from each of `poses` (b, 3): for every primitive, the
+@kernel
+def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: np.ndarray,
+            weight: float, period: float, longest: float, shortest: float,
+            fractions: np.ndarray, detours: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pushes to try on one object from each of `poses` (b, 3): per primitive (its rate
+    rates[primitive - 1], world change per metre (x, y, theta) in the object frame), the
     length that brings it closest to `goal` (closed form, the pose being affine in the length)
-    and half of it, plus fixed detour lengths.
+    times each of `fractions`, then each of the fixed `detours`; lengths below `shortest` are
+    left out, steering lengths are clipped to [0, longest]. Compiled: the A* asks for a batch
+    of a few poses at a time, far too small for numpy to pay off.
 
     Returns:
-        rows (k,) into `poses`, primitives (k,) and lengths (k,).
+        rows (k,) into `poses`, primitives (k,), lengths (k,), the poses after the pushes
+        (k, 3), their weighted errors to `goal` (object_error) and duplicate-pose keys (k, 3).
     """
-    primitives = problem.action_primitives[problem.action_objects == index]
-    count, kinds = len(poses), len(primitives)
-    u = problem.push_directions(state, np.full(count * kinds, index), np.tile(primitives, count),
-                                np.repeat(poses, kinds, 0)).reshape(count, kinds, 3)
-    error = goal[None] - poses
-    period = problem.angle_period[index]
-    error[:, 2] = (error[:, 2] + period / 2) % period - period / 2 if period > 0 else 0.0
-    w2 = np.array([1.0, 1.0, weight**2])
-    ideal = ((u * error[:, None] * w2).sum(-1)
-             / np.maximum((u * u * w2).sum(-1), 1e-12))               # (b, p)
-    longest = problem.max_lengths[index]
-    steer = np.clip(ideal[..., None] * STEER_FRACTIONS, 0.0, longest)
-    detours = np.unique(np.minimum(FIXED_LENGTHS, longest))  # one 5 cm push, not two
-    lengths = np.concatenate(
-        [steer, np.broadcast_to(detours, (count, kinds, len(detours)))], axis=-1)  # (b, p, m)
-    keep = lengths >= problem.min_length
-    rows = np.broadcast_to(np.arange(count)[:, None, None], lengths.shape)
-    return (rows[keep], np.broadcast_to(primitives[None, :, None], lengths.shape)[keep],
-            lengths[keep])
+    per_pose = len(primitives) * (len(fractions) + len(detours))
+    total = len(poses) * per_pose
+    rows = np.empty(total, np.int64)
+    kinds = np.empty(total, np.int64)
+    lengths = np.empty(total)
+    new = np.empty((total, 3))
+    errors = np.empty(total)
+    keys = np.empty((total, 3), np.int64)
+    w2 = weight ** 2
+    k = 0
+    for b in range(len(poses)):
+        x, y, theta = poses[b, 0], poses[b, 1], poses[b, 2]
+        c, s = math.cos(theta), math.sin(theta)
+        ex, ey, et = goal[0] - x, goal[1] - y, goal[2] - theta
+        et = (et + period / 2) % period - period / 2 if period > 0 else 0.0
+        for primitive in primitives:
+            rx, ry, rt = rates[primitive - 1, 0], rates[primitive - 1, 1], rates[primitive - 1, 2]
+            ux, uy = c * rx - s * ry, s * rx + c * ry
+            ideal = ((ux * ex * 1.0 + uy * ey * 1.0 + rt * et * w2)
+                     / max(ux * ux * 1.0 + uy * uy * 1.0 + rt * rt * w2, 1e-12))
+            for m in range(len(fractions) + len(detours)):
+                if m < len(fractions):
+                    length = min(max(ideal * fractions[m], 0.0), longest)
+                else:
+                    length = detours[m - len(fractions)]
+                if length < shortest:
+                    continue
+                nx, ny, nt = x + length * ux, y + length * uy, theta + length * rt
+                dx, dy, dt = goal[0] - nx, goal[1] - ny, goal[2] - nt
+                dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
+                rows[k], kinds[k], lengths[k] = b, primitive, length
+                new[k, 0], new[k, 1], new[k, 2] = nx, ny, nt
+                errors[k] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
+                keys[k, 0] = np.rint(nx / KEY_RESOLUTION)
+                keys[k, 1] = np.rint(ny / KEY_RESOLUTION)
+                keys[k, 2] = np.rint(weight * (nt % period if period > 0 else 0.0)
+                                     / KEY_RESOLUTION)
+                k += 1
+    return rows[:k], kinds[:k], lengths[:k], new[:k], errors[:k], keys[:k]
 
 
 def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: np.ndarray,
@@ -116,21 +144,23 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     if errors[0] <= tolerance:
         return [], True
     queue = [(errors[0], 0)]  # (f, node)
-    seen = set(_keys(start[None], weight, period))
+    own_primitives = problem.action_primitives[problem.action_objects == index]
+    longest = float(problem.max_lengths[index])
+    detours = np.unique(np.minimum(FIXED_LENGTHS, longest))  # one 5 cm push, not two
+    seen = {_key(start, weight, period)}
     expansions = 0
     while queue and expansions < max_expansions:
         tick()
         nodes = [heapq.heappop(queue)[1] for _ in range(min(batch, len(queue)))]
         expansions += len(nodes)
-        rows, primitives, lengths = _candidate_pushes(problem, state, index,
-                                                      np.array([poses[node] for node in nodes]),
-                                                      goal, weight)
+        expanded = np.array([poses[node] for node in nodes])
+        rows, primitives, lengths, new, error, cells = _expand(
+            expanded, problem.rates[index], own_primitives, goal, weight, period, longest,
+            problem.min_length, STEER_FRACTIONS, detours)
         owner = np.array(nodes)[rows]
-        before = np.array(poses)[owner]
+        before = expanded[rows]
         objects = np.full(len(primitives), index)
-        new = problem.predict(state, objects, primitives, lengths, before)
-        error = object_error(problem, index, new, goal, weight)
-        keys = _keys(new, weight, period)
+        keys = list(map(tuple, cells.tolist()))
         fresh = np.array([key not in seen for key in keys], bool)
         if not fresh.any():
             continue
@@ -155,12 +185,12 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     return (_trace(parents, actions, best) if best else []), False
 
 
-def _keys(poses: np.ndarray, weight: float, period: float) -> list[tuple[int, int, int]]:
-    """Grid cells (KEY_RESOLUTION) of poses (k, 3), heading reduced modulo the symmetry."""
-    angle = poses[:, 2] % period if period > 0 else np.zeros(len(poses))
-    cells = np.rint(np.column_stack([poses[:, 0], poses[:, 1], weight * angle])
-                    / KEY_RESOLUTION).astype(np.int64)
-    return list(map(tuple, cells.tolist()))
+def _key(pose: np.ndarray, weight: float, period: float) -> tuple[int, int, int]:
+    """Grid cell (KEY_RESOLUTION) of a pose (3,), heading reduced modulo the symmetry (as
+    _expand keys the poses it makes)."""
+    angle = pose[2] % period if period > 0 else 0.0
+    return (int(np.rint(pose[0] / KEY_RESOLUTION)), int(np.rint(pose[1] / KEY_RESOLUTION)),
+            int(np.rint(weight * angle / KEY_RESOLUTION)))
 
 
 def _trace(parents: list[int], actions: list[Push], node: int) -> list[Push]:
