@@ -48,7 +48,7 @@ from tsrrt_executor.push_primitives import (
     push_geometry,
 )
 from tsrrt_executor.reachability import default_map
-from tsrrt_planner.collision import CollisionChecker
+from tsrrt_planner.collision import CollisionChecker, kernel
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import MIN_PUSH_LENGTH, ModelStore
 from tsrrt_planner.objectives import Objective, ObjectSet, build_objective
@@ -87,6 +87,41 @@ def shortest_turn(delta_theta: np.ndarray, period: np.ndarray) -> np.ndarray:
     a period of 0, a disc's, turns by nothing)."""
     safe = np.where(period > 0, period, 1.0)
     return np.where(period > 0, (delta_theta + safe / 2) % safe - safe / 2, 0.0)
+
+
+@kernel
+def _push_geometry(before: np.ndarray, rates: np.ndarray, contact: np.ndarray,
+                   direction: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                   lengths: np.ndarray, half_length: np.ndarray, max_substep: float,
+                   ball_radius: float, approach_clearance: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For pushes (k,) of objects at poses `before` (k, 3): the pose change (k, 3), how many
+    poses along the way to check (one per max_substep of travel, a box's turn counted as the
+    arc of its ends) and the ball's approach and end points (k, 2), as the executor moves it.
+    One compiled pass: the planner checks a few dozen pushes at a time, thousands of times a
+    second."""
+    k = len(objects)
+    change = np.empty((k, 3))
+    steps = np.empty(k, np.int64)
+    start = np.empty((k, 2))
+    end = np.empty((k, 2))
+    for i in range(k):
+        obj, slot, length = objects[i], primitives[i] - 1, lengths[i]
+        c, s = math.cos(before[i, 2]), math.sin(before[i, 2])
+        rx, ry = rates[obj, slot, 0], rates[obj, slot, 1]
+        ux, uy, ut = c * rx - s * ry, s * rx + c * ry, rates[obj, slot, 2]
+        change[i, 0], change[i, 1], change[i, 2] = length * ux, length * uy, length * ut
+        travel = length * max(math.sqrt(ux * ux + uy * uy), abs(ut) * half_length[obj])
+        steps[i] = math.ceil(travel / max_substep)
+        cx, cy = contact[obj, slot, 0], contact[obj, slot, 1]
+        dx, dy = direction[obj, slot, 0], direction[obj, slot, 1]
+        wdx, wdy = c * dx - s * dy, s * dx + c * dy
+        touch_x = before[i, 0] + (c * cx - s * cy) - ball_radius * wdx
+        touch_y = before[i, 1] + (s * cx + c * cy) - ball_radius * wdy
+        start[i, 0] = touch_x - approach_clearance * wdx
+        start[i, 1] = touch_y - approach_clearance * wdy
+        end[i, 0], end[i, 1] = touch_x + length * wdx, touch_y + length * wdy
+    return change, steps, start, end
 
 
 def push_in_reach(spec: ObjectSpec, pose: Pose2D, primitive: int, reachability: Reachability,
@@ -299,15 +334,11 @@ class PlanningProblem:
         if k == 0:
             return np.zeros(0, bool)
         before = state[objects] if poses is None else poses
-        u = self.push_directions(state, objects, primitives, before)
+        change, steps, start, end = self._geometry(before, objects, primitives, lengths)
         ok = lengths <= self.max_lengths[objects] + 1e-9
         if self.refused:
             ok &= ~self._refused_here(state, objects, primitives, before)
         # the pushed object's way, checked every max_substep of travel
-        travel = lengths * np.maximum(np.linalg.norm(u[:, :2], axis=1),
-                                      np.abs(u[:, 2]) * self.objects.half_length[objects])
-        steps = np.ceil(travel / self.max_substep).astype(np.int64)
-        change = lengths[:, None] * u
         alive = np.nonzero(ok)[0]
         ok[alive] = self.checker.swept_valid(state, objects[alive], before[alive],
                                              change[alive], steps[alive])
@@ -317,12 +348,20 @@ class PlanningProblem:
                                          before[alive] + change[alive])
         alive = np.nonzero(ok)[0]
         if len(alive):
-            start, end = self.ball_path(state, objects[alive], primitives[alive], lengths[alive],
-                                        before[alive])
-            reach = self.path_reachable(start, end)
-            clear = self.checker.ball_paths_clear(state, objects[alive], start, end, BALL_RADIUS)
+            reach = self.path_reachable(start[alive], end[alive])
+            clear = self.checker.ball_paths_clear(state, objects[alive], start[alive],
+                                                  end[alive], BALL_RADIUS)
             ok[alive] = reach & clear
         return ok
+
+    def _geometry(self, before: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                  lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """_push_geometry for pushes of objects (k,) from poses `before` (k, 3)."""
+        return _push_geometry(np.asarray(before, float), self.rates, self.contact,
+                              self.direction, np.asarray(objects, np.int64),
+                              np.asarray(primitives, np.int64), np.asarray(lengths, float),
+                              self.objects.half_length, self.max_substep, BALL_RADIUS,
+                              APPROACH_CLEARANCE)
 
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start
@@ -380,11 +419,8 @@ class PlanningProblem:
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Ball-centre approach and end points (k, 2) in the world, as the executor moves it."""
         before = state[objects] if poses is None else poses
-        c, s = np.cos(before[:, 2]), np.sin(before[:, 2])
-        contact = _to_world(c, s, self.contact[objects, primitives - 1])
-        direction = _to_world(c, s, self.direction[objects, primitives - 1])
-        touch = before[:, :2] + contact - BALL_RADIUS * direction
-        return touch - APPROACH_CLEARANCE * direction, touch + lengths[:, None] * direction
+        _, _, start, end = self._geometry(before, objects, primitives, lengths)
+        return start, end
 
     def state_valid(self, state: np.ndarray) -> bool:
         return self.checker.state_valid(state)
