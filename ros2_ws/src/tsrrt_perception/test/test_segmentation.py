@@ -66,6 +66,28 @@ def test_side_faces_do_not_shift_a_tall_object_off_centre(rendered_frame, classe
     assert position_error(detection, pose) < 0.5e-3
 
 
+def test_rendered_platters_touching_corner_to_side_keep_their_class(classes, camera_view):
+    """Rendered touching faces leave colour-edge pixels between them; a face grown over them
+    kept a one-pixel spur that made both platters read as discs (a tset6 demo's end state:
+    no class for either, and the task failed)."""
+    poses = [Pose2D(0.4767, -0.0283, -0.2732), Pose2D(0.4434, 0.1116, 0.5869)]
+    renderer = TabletopRenderer(pixel_centre_fix=True)
+    for k, (pose, colour) in enumerate(zip(poses, [(0.3, 0.7, 0.3), (0.6, 0.4, 0.2)],
+                                           strict=True)):
+        renderer.add(f"platter_{k}", classes["platter"], colour)
+        renderer.place(f"platter_{k}", pose)
+    frame = renderer.render()
+    renderer.close()
+    result = segment_objects(frame.depth, camera_view, 0.0, classes, rgb=frame.rgb)
+    assert len(result.detections) == 2
+    for pose in poses:
+        detection = nearest(result.detections, pose)
+        assert detection.object_class == "platter" and detection.pose_valid
+        assert position_error(detection, pose) < 1e-3
+        turn = angle_difference_modulo_symmetry(detection.pose.theta, pose.theta, 2)
+        assert abs(math.degrees(turn)) < 1.0
+
+
 def test_arm_over_an_object_flags_it_occluded(classes, camera_view, painter):
     eraser, pose = classes["eraser"], Pose2D(0.45, 0.10, 0.2)
     free_pose = Pose2D(0.40, -0.15, -0.5)

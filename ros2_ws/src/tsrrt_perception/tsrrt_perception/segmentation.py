@@ -249,7 +249,12 @@ class FaceMeasurer:
         metres_per_px = float(np.linalg.norm(long_axis)) / 10.0
         area = face.area_px * metres_per_px ** 2
 
-        contours, _ = cv2.findContours(face.mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        # The shape is read from the face without one-pixel spurs: grown into the colour-edge
+        # pixels along a neighbour it touches, a face can keep one there, and it inflated the
+        # bounding rectangles of two touching platters until both read as discs (no class: a
+        # tset6 demo failed with neither platter seen).
+        contours, _ = cv2.findContours(cv2.morphologyEx(face.mask, cv2.MORPH_OPEN, _SQUARE),
+                                       cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         contour = max(contours, key=cv2.contourArea)
         (_, _), (rect_w, rect_h), rect_angle = cv2.minAreaRect(contour)
         fill = face.area_px / ((rect_w + 1.0) * (rect_h + 1.0))
