@@ -9,7 +9,12 @@ from tsrrt_common.camera import OverheadCamera
 from tsrrt_common.geometry import Pose2D, angle_difference_modulo_symmetry, box_corners
 from tsrrt_perception.camera_view import CameraModelError, CameraView
 from tsrrt_perception.scene_rendering import TabletopRenderer
-from tsrrt_perception.segmentation import segment_objects
+from tsrrt_perception.segmentation import (
+    FaceMeasurer,
+    SegmentationParams,
+    _Face,
+    segment_objects,
+)
 
 RENDERED_POSES = {
     "plate": Pose2D(0.34, 0.17, 0.0), "platter": Pose2D(0.34, -0.02, 0.3),
@@ -86,6 +91,18 @@ def test_rendered_platters_touching_corner_to_side_keep_their_class(classes, cam
         assert position_error(detection, pose) < 1e-3
         turn = angle_difference_modulo_symmetry(detection.pose.theta, pose.theta, 2)
         assert abs(math.degrees(turn)) < 1.0
+
+
+def test_a_face_thinner_than_the_spur_filter_is_still_measured(classes, camera_view):
+    """The shape test drops one-pixel spurs; a face that is nothing but such lines keeps its
+    own outline (unknown class) instead of leaving no contour to measure."""
+    heights = np.zeros((camera_view.height, camera_view.width), np.float32)
+    measurer = FaceMeasurer(classes, camera_view, heights, 0.0, SegmentationParams())
+    mask = np.zeros((20, 200), np.uint8)
+    mask[10, 5:195] = 1
+    mask[11, 5:100] = 1
+    detection = measurer.measure(_Face(mask, (200, 200), 0.02))
+    assert detection.object_class is None and not detection.pose_valid
 
 
 def test_arm_over_an_object_flags_it_occluded(classes, camera_view, painter):

@@ -252,8 +252,10 @@ class FaceMeasurer:
         # The shape is read from the face without one-pixel spurs: grown into the colour-edge
         # pixels along a neighbour it touches, a face can keep one there, and it inflated the
         # bounding rectangles of two touching platters until both read as discs (no class: a
-        # tset6 demo failed with neither platter seen).
-        contours, _ = cv2.findContours(cv2.morphologyEx(face.mask, cv2.MORPH_OPEN, _SQUARE),
+        # tset6 demo failed with neither platter seen). A face thinner than the opening keeps
+        # its own outline.
+        opened = cv2.morphologyEx(face.mask, cv2.MORPH_OPEN, _SQUARE)
+        contours, _ = cv2.findContours(opened if opened.any() else face.mask,
                                        cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         contour = max(contours, key=cv2.contourArea)
         (_, _), (rect_w, rect_h), rect_angle = cv2.minAreaRect(contour)
