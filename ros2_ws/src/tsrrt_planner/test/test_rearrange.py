@@ -12,6 +12,10 @@ from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.reachability import segments_reached
 from tsrrt_planner.rearrange import (
+    FIXED_LENGTHS,
+    STEER_FRACTIONS,
+    _expand,
+    _key,
     blockers_of,
     corridor_blocks,
     object_error,
@@ -94,6 +98,44 @@ def test_compiled_reach_lookups_agree_with_the_map(problem):
                                                                   lengths))
         checked += valid.sum()
     assert checked > 100
+
+
+def test_expansion_agrees_with_the_forward_model_and_steers_closest(problem):
+    """The A*'s compiled expansion: its poses are the forward model's, its errors
+    object_error's, its keys _key's, and its closed-form length brings the object closest to
+    the goal among all lengths up to the longest push."""
+    rng = np.random.default_rng(11)
+    index = problem.objects.ids.index("platter_1")
+    weight = float(weights(problem)[index])
+    poses = problem.start[index] + np.column_stack([rng.uniform(-0.05, 0.05, (6, 2)),
+                                                    rng.uniform(-1.0, 1.0, 6)])
+    goal = problem.start[index] + np.array([0.08, -0.05, 0.6])
+    primitives = problem.action_primitives[problem.action_objects == index]
+    longest = float(problem.max_lengths[index])
+    detours = np.unique(np.minimum(FIXED_LENGTHS, longest))
+    rows, kinds, lengths, new, errors, keys = _expand(
+        poses, problem.rates[index], primitives, goal, weight, problem.angle_period[index],
+        longest, problem.min_length, STEER_FRACTIONS, detours)
+    assert len(rows) > 0 and (lengths >= problem.min_length).all()
+    assert (lengths <= longest + 1e-12).all()
+    objects = np.full(len(rows), index)
+    np.testing.assert_allclose(new, problem.predict(problem.start, objects, kinds, lengths,
+                                                    poses[rows]), atol=1e-12)
+    np.testing.assert_allclose(errors, object_error(problem, index, new, goal, weight),
+                               atol=1e-12)
+    assert [tuple(key) for key in keys] == [
+        _key(pose, weight, problem.angle_period[index]) for pose in new]
+    grid = np.linspace(0.0, longest, 401)
+    for row in range(len(poses)):
+        for primitive in primitives:
+            steered = (rows == row) & (kinds == primitive)
+            sampled = problem.predict(problem.start, np.full(len(grid), index),
+                                      np.full(len(grid), primitive), grid,
+                                      np.repeat(poses[row][None], len(grid), 0))
+            sampled_errors = object_error(problem, index, sampled, goal, weight)
+            if grid[np.argmin(sampled_errors)] < problem.min_length:
+                continue   # no push is that short: nothing to steer
+            assert errors[steered].min() <= sampled_errors.min() + 1e-9
 
 
 def test_pushes_from_given_poses_match_pushes_from_the_state(problem):

@@ -70,8 +70,8 @@ def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: 
             weight: float, period: float, longest: float, shortest: float,
             fractions: np.ndarray, detours: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The pushes to try on one object from each of `poses` (b, 3): per primitive (its rate
-    rates[primitive - 1], world change per metre (x, y, theta) in the object frame), the
+    """The pushes to try on one object from each of `poses` (b, 3): per primitive (its pose
+    change per metre of push, rates[primitive - 1]: x, y in the object frame, theta), the
     length that brings it closest to `goal` (closed form, the pose being affine in the length)
     times each of `fractions`, then each of the fixed `detours`; lengths below `shortest` are
     left out, steering lengths are clipped to [0, longest]. Compiled: the A* asks for a batch
