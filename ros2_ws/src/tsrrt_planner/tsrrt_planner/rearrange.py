@@ -99,8 +99,8 @@ def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: 
         for primitive in primitives:
             rx, ry, rt = rates[primitive - 1, 0], rates[primitive - 1, 1], rates[primitive - 1, 2]
             ux, uy = c * rx - s * ry, s * rx + c * ry
-            ideal = ((ux * ex * 1.0 + uy * ey * 1.0 + rt * et * w2)
-                     / max(ux * ux * 1.0 + uy * uy * 1.0 + rt * rt * w2, 1e-12))
+            ideal = ((ux * ex + uy * ey + rt * et * w2)
+                     / max(ux * ux + uy * uy + rt * rt * w2, 1e-12))
             for m in range(len(fractions) + len(detours)):
                 if m < len(fractions):
                     length = min(max(ideal * fractions[m], 0.0), longest)
