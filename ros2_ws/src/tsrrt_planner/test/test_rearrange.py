@@ -90,9 +90,14 @@ def test_compiled_reach_lookups_agree_with_the_map(problem):
         primitives = np.where(problem.objects.is_disc[pushed], rng.integers(1, 5, 200),
                               rng.integers(1, 7, 200))
         lengths = rng.uniform(0.002, 0.1, 200)
-        start, end = problem.ball_path(state, pushed, primitives, lengths)
-        np.testing.assert_array_equal(compiled.path_reachable(start, end),
-                                      generic.path_reachable(start, end))
+        # ball paths: up to 13 cm (approach and the longest push) anywhere over the table
+        start = np.column_stack([rng.uniform(0.2, 0.75, 200), rng.uniform(-0.35, 0.35, 200)])
+        heading = rng.uniform(-np.pi, np.pi, 200)
+        end = start + rng.uniform(0.0, 0.13, 200)[:, None] * np.column_stack(
+            [np.cos(heading), np.sin(heading)])
+        reached = compiled.path_reachable(start, end)
+        np.testing.assert_array_equal(reached, generic.path_reachable(start, end))
+        assert 0 < reached.sum() < len(reached)
         valid = compiled.pushes_valid(state, pushed, primitives, lengths)
         np.testing.assert_array_equal(valid, generic.pushes_valid(state, pushed, primitives,
                                                                   lengths))

@@ -414,14 +414,6 @@ class PlanningProblem:
         points = start[owner] + fractions[:, None] * delta[owner]
         return np.logical_and.reduceat(self.reachability.reachable(points), firsts)
 
-    def ball_path(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                  lengths: np.ndarray, poses: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """Ball-centre approach and end points (k, 2) in the world, as the executor moves it."""
-        before = state[objects] if poses is None else poses
-        _, _, start, end = self._geometry(before, objects, primitives, lengths)
-        return start, end
-
     def state_valid(self, state: np.ndarray) -> bool:
         return self.checker.state_valid(state)
 
