@@ -543,7 +543,7 @@ def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
     def recording_plan_from(*args, **kwargs):
         problem, result = real_plan_from(*args, **kwargs)
         calls.append((kwargs.get("replaced"), result, kwargs.get("good_enough_cost"),
-                      kwargs.get("stall")))
+                      kwargs.get("stall"), kwargs.get("give_up")))
         return problem, result
 
     monkeypatch.setattr(closed_loop, "plan_from", recording_plan_from)
@@ -561,6 +561,13 @@ def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
     fresh = [call for k, call in enumerate(calls) if k > 0 and call[0] is None]
     assert fresh, "the task ended without a fresh plan after its first"
     assert fresh[0][3].ceiling - fresh[0][3].tolerance == pytest.approx(report.lower_bound)
+    # every plan but the first gives up after 4 s without a gain worth executing (1 % of the
+    # larger of its start cost and the task's range)
+    assert calls[0][4] is None
+    for _, result, _, _, give_up in calls[1:]:
+        start = float(result.costs[0])
+        assert give_up.seconds == 4.0
+        assert give_up.cost == pytest.approx(start - 0.01 * max(abs(start), task_range))
     replaced, executed = calls[1][0]
     assert replaced is calls[0][1] and executed == 2   # the bump came after the second push
     # the replan may stop once it is within `convergence` (1 %) of what the replaced plan

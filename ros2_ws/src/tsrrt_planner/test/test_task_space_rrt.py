@@ -19,6 +19,7 @@ from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
     MODES,
     TASK_SPACE_RRT,
+    GiveUpRule,
     PlanStep,
     SoftDeadline,
     StallRule,
@@ -121,6 +122,17 @@ def test_a_soft_deadline_stops_a_search_only_once_its_best_is_good_enough(proble
     never = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,
                            target=bound.state, soft_deadline=SoftDeadline(0.3, -math.inf))
     assert never.stop_reason == "nodes"
+
+
+def test_a_search_gives_up_only_when_it_has_found_nothing_better_than_its_rule(problem, bound):
+    hopeless = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,
+                              target=bound.state, give_up=GiveUpRule(0.3, -math.inf))
+    assert hopeless.stop_reason == "nothing found" and hopeless.elapsed_s < 30.0
+    # still a plan from the best state found: the finishing polish runs as for any stop
+    np.testing.assert_allclose(hopeless.states, replay(problem, hopeless), atol=1e-12)
+    found = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,
+                           target=bound.state, give_up=GiveUpRule(0.3, math.inf))
+    assert found.stop_reason == "nodes"
 
 
 def test_cancel_and_progress(problem):

@@ -260,6 +260,9 @@ class PlannerNode(Node):
                 "RunTask: a plan after the first stops when, near what the plan it replaces "
                 "promised (or the lower bound), its best improves by less than convergence in "
                 "this long, s (0: off)"))
+        declare("give_up_s", 4.0, _float(0.0, 600.0,
+                "RunTask: a plan after the first stops when it has found nothing worth "
+                "executing (a gain below convergence) in this long, s (0: off)"))
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
@@ -623,6 +626,7 @@ class PlannerNode(Node):
             time_budget_s=time_budget_s or self._param("time_budget_s"),
             convergence=self._param("convergence"),
             stall_s=self._param("stall_s") or None,
+            give_up_s=self._param("give_up_s") or None,
             seed=seed if seed >= 0 else self._param("planner_seed"),
             margin=self._param("planning_margin"))
 

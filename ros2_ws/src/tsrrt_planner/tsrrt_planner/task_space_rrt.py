@@ -116,6 +116,16 @@ class SoftDeadline:
 
 
 @dataclass(frozen=True)
+class GiveUpRule:
+    """Stop a search at `seconds` if its best cost is still above `cost`: from a state a
+    finished plan left, a search that has found nothing worth executing by then rarely does
+    later (docs/planner.md, "Closed loop"), and every second it goes on the robot waits."""
+
+    seconds: float
+    cost: float
+
+
+@dataclass(frozen=True)
 class PlanStep:
     """One push: object id, primitive 1-6, push length in metres."""
 
@@ -132,7 +142,8 @@ class PlanResult:
         states: (m + 1, n, 3) predicted states along the plan, from the start.
         costs: (m + 1,) objective along the plan.
         trace: (elapsed_s, nodes, best_cost) each time the best cost improved.
-        stop_reason: "time", "nodes", "cancelled", "converged" or "recovered".
+        stop_reason: "time", "nodes", "cancelled", "converged", "recovered", "stalled" or
+            "nothing found".
     """
 
     mode: str
@@ -211,11 +222,13 @@ class _Search:
                  cancel: Cancel | None, orientation_weights: np.ndarray,
                  good_enough_cost: float | None = None,
                  stall: StallRule | None = None, shortest_within: float = 0.0,
-                 soft_deadline: SoftDeadline | None = None) -> None:
+                 soft_deadline: SoftDeadline | None = None,
+                 give_up: GiveUpRule | None = None) -> None:
         self.problem, self.mode, self.seed, self.config = problem, mode, seed, config
         self.good_enough_cost = good_enough_cost
         self.stall = stall
         self.soft_deadline = soft_deadline
+        self.give_up = give_up
         self.shortest_within = shortest_within
         self.rng = np.random.default_rng(seed)
         self.time_budget_s, self.max_nodes = time_budget_s, max_nodes
@@ -252,6 +265,11 @@ class _Search:
                 and self.elapsed() >= soft.seconds * self.search_share):
             self.deadline_s = soft.seconds
             raise _Stop("time")
+        give_up = self.give_up
+        if (give_up is not None and self.best_cost > give_up.cost
+                and self.elapsed() >= give_up.seconds):
+            self.deadline_s = self.elapsed()   # nothing to shorten: the plan is not worth it
+            raise _Stop("nothing found")
         if self.progress is not None and self.checks % 50 == 0:
             self.progress(ProgressInfo(self.elapsed(), self.tree.size, self.best_cost))
 
@@ -1106,7 +1124,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
                    previous_goal: np.ndarray | None = None,
                    good_enough_cost: float | None = None,
                    stall: StallRule | None = None, shortest_within: float = 0.0,
-                   soft_deadline: SoftDeadline | None = None) -> PlanResult:
+                   soft_deadline: SoftDeadline | None = None,
+                   give_up: GiveUpRule | None = None) -> PlanResult:
     """Plan pushes that lower the objective; returns the best plan found (anytime).
 
     Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
@@ -1136,6 +1155,9 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
             (absolute cost) of the best found, rather than the plan to the best (0).
         soft_deadline: stop early once past its time with a best cost at or below its cost
             (SoftDeadline; stop reason "time"). Time-based, so not repeatable by seed.
+        give_up: stop once past its time with a best cost still above its cost (GiveUpRule;
+            stop reason "nothing found"); the plan still gets its finishing polish.
+            Time-based, so not repeatable by seed.
     """
     if mode not in MODES:
         raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
@@ -1168,7 +1190,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     warm_pushes = [(index[step.object_id], step.primitive, step.push_length)
                    for step in warm_start]
     arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
-                 weights, good_enough_cost, stall, shortest_within, soft_deadline)
+                 weights, good_enough_cost, stall, shortest_within, soft_deadline, give_up)
     search: _Search
     if mode == "greedy":
         search = _GreedySearch(*arguments)
