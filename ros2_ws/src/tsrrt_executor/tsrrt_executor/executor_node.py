@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+import traceback
 
 import numpy as np
 from builtin_interfaces.msg import Duration
@@ -390,10 +391,16 @@ class ExecutorNode(Node):
                     goal_handle.canceled()
                 else:
                     goal_handle.abort()
-        except Exception:
-            if not shutting_down():
-                raise
-            result.error_code, result.error_msg = Result.CANCELED, "the node shut down"
+        except Exception as error:   # noqa: BLE001 - a bug: answered, never left unanswered
+            if shutting_down():
+                result.error_code, result.error_msg = Result.CANCELED, "the node shut down"
+            else:
+                # Raised out of the callback, the goal would end without a result, and the
+                # client would read the default one: SUCCESS, with zero displacement.
+                self.get_logger().error(traceback.format_exc())
+                result.error_code = Result.INTERNAL_ERROR
+                result.error_msg = f"internal error: {type(error).__name__}: {error}"
+                goal_handle.abort()
         finally:
             with self.lock:
                 self.busy = False

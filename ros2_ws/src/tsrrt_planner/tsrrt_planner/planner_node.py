@@ -26,6 +26,7 @@ import math
 import os
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from concurrent.futures import Future
 from pathlib import Path
@@ -484,11 +485,18 @@ class PlannerNode(Node):
         except (TsrrtError, ValueError) as failure:
             result.error_code, result.error_msg = result.INVALID_GOAL, str(failure)
             self._finish(goal_handle, False)
-        except Exception:
-            if not shutting_down():
-                raise
-            result.error_code = GoalFailed("CANCELED", "").code_for(result)
-            result.error_msg = "the node shut down during the goal"
+        except Exception as error:   # noqa: BLE001 - a bug: answered, never left unanswered
+            if shutting_down():
+                result.error_code = GoalFailed("CANCELED", "").code_for(result)
+                result.error_msg = "the node shut down during the goal"
+            else:
+                # Raised out of the callback, the goal would end without a result, and the
+                # client would read the default one: SUCCESS (a demo reported a crashed task
+                # as succeeded).
+                self.get_logger().error(traceback.format_exc())
+                result.error_code = result.INTERNAL_ERROR
+                result.error_msg = f"internal error: {type(error).__name__}: {error}"
+                goal_handle.abort()
         finally:
             self._busy.release()
         if result.error_code != result.SUCCESS:
@@ -592,8 +600,7 @@ class PlannerNode(Node):
             rules = ModelStore()   # any models covering the objects: the bound ignores them
             assume_rule_where_uncovered(rules, self.scenario.objects)
             problem = PlanningProblem(self.scenario, rules, self.reachability,
-                                      margin=self._param("planning_margin"),
-            next_push_clearance=self._param("next_push_clearance"))
+                                      margin=self._param("planning_margin"))
             self._lower_bound.set_result(lower_bound(
                 problem, starts=self._param("lower_bound_starts"), cancel=shutting_down))
         except Exception as error:   # Cancelled too: handed to the goal that needs the bound
