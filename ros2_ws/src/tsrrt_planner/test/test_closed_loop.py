@@ -21,7 +21,6 @@ from tsrrt_planner.closed_loop import (
     TaskSettings,
     footprint_gap,
     learn_in_place,
-    next_push_keeps_clear,
     run_task,
     scenario_at,
     update_model_with_push,
@@ -39,7 +38,7 @@ from tsrrt_planner.model_learning import (
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import SimulatedPusher, learn_all
 from tsrrt_planner.reachability import AnnulusReachability
-from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, PlanStep
+from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT
 
 
 def _executor(pusher: SimulatedPusher):
@@ -574,47 +573,6 @@ def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
     # the replan may stop once it is within `convergence` (1 %) of what the replaced plan
     # promised
     assert calls[1][2] == pytest.approx(promised + 0.01 * abs(promised))
-
-
-def test_the_next_push_must_keep_clear_of_the_objects_where_they_are_seen() -> None:
-    """The remote 6 mm beside the scale: a push towards it that closes 2 mm keeps clear of
-    it, one that closes 5 mm does not, and one away from it would need the ball in the gap."""
-    scenario = load_scenario("clean")
-    store = learn_all(scenario.objects, seed=0)
-    scale, remote = scenario.object("scale"), scenario.object("remote")
-    gap = 0.006
-    observed = {"scale": Pose2D(0.45, -(scale.width + remote.width) / 2 - gap, 0.0),
-                "remote": Pose2D(0.45, 0.0, 0.0), "eraser": Pose2D(0.33, 0.17, 0.0)}
-    problem = PlanningProblem(closed_loop.scenario_at(scenario, observed), store,
-                              AnnulusReachability())
-    index = problem.objects.ids.index("remote")
-    sideways = {p: float(problem.push_directions(problem.start, np.array([index]),
-                                                 np.array([p]))[0, 1]) for p in (3, 4)}
-    towards = min(sideways, key=sideways.get)    # the one that moves it to -y, the scale
-    away = max(sideways, key=sideways.get)
-    settings = TaskSettings()   # keep 2.5 mm
-
-    def keeps_clear(primitive: int, closing: float) -> bool:
-        length = closing / abs(sideways[primitive])
-        return next_push_keeps_clear(scenario, observed, store, AnnulusReachability(),
-                                     settings, PlanStep("remote", primitive, length))
-
-    assert keeps_clear(towards, 0.002)
-    assert not keeps_clear(towards, 0.005)
-    assert not keeps_clear(away, 0.002)
-
-
-def test_task_loop_replans_when_the_next_push_would_not_keep_clear(monkeypatch) -> None:
-    checked = []
-
-    def clear_but_once(*args) -> bool:
-        checked.append(args[-1])
-        return len(checked) != 1
-    monkeypatch.setattr(closed_loop, "next_push_keeps_clear", clear_but_once)
-    _, report = _task("tset3", seed=0)
-    assert report.replans >= 1
-    assert report.divergences[0].object_id == checked[0].object_id
-    assert report.divergences[0].reason.startswith("its next push")
 
 
 def test_improvement_is_judged_against_the_task_range_when_the_optimum_is_zero() -> None:

@@ -85,7 +85,6 @@ from tsrrt_planner.task_space_rrt import (
     TASK_SPACE_RRT,
     GiveUpRule,
     PlanResult,
-    PlanStep,
     Progress,
     SoftDeadline,
     StallRule,
@@ -508,13 +507,6 @@ class TaskSettings:
     # A plan that climbs more than this many times what its detour then gains ends in a
     # detour; steps_worth_executing says when only the part before the climb is executed.
     detour_max_climb: float = 2.0
-    # Clearance (m) the plan's next push must keep from the objects and the table edges where
-    # they are observed, or the task replans before it: the plan spaced its states by `margin`,
-    # and pushes that land a few millimetres off (each within its model's confidence) add up.
-    # A clean demo's last push of the eraser, 5 mm from the remote as planned, met it and
-    # shoved the row 1.6 cm sideways, where no push could bring it back. Half the margin, so
-    # that a millimetre off does not replan.
-    next_push_clearance: float = 0.0025
 
 
 @dataclass
@@ -722,17 +714,6 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             if report.pushes >= settings.max_pushes:
                 report.stop_reason = "push budget"
                 return report
-            if k > 0 and not next_push_keeps_clear(scenario, observed, store, reachability,
-                                                   settings, step):
-                blocked = Divergence(step.object_id, 0.0, 0.0,
-                                     f"its next push (primitive {step.primitive}) would come "
-                                     f"within {1000 * settings.next_push_clearance:.1f} mm of "
-                                     "another object or the table edge from where it is seen")
-                if not _replan_allowed(report, [blocked], settings):
-                    return report
-                replaced = (result, k)
-                on_event("replanning", report)
-                break
             if time.monotonic() - began > settings.time_budget_s:
                 report.stop_reason = "time budget"
                 return report
@@ -778,20 +759,6 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                 replaced = (result, k + 1)
                 on_event("replanning", report)
                 break
-
-
-def next_push_keeps_clear(scenario: Scenario, observed: Mapping[str, Pose2D],
-                          store: ModelStore, reachability: Reachability,
-                          settings: TaskSettings, step: PlanStep) -> bool:
-    """Whether `step`, pushed from the `observed` poses as its model predicts, keeps
-    settings.next_push_clearance from the other objects and the table edges (no closer than a
-    pair already is) and the ball the executor's own 3 mm from the objects it passes."""
-    problem = PlanningProblem(scenario_at(scenario, observed), store, reachability,
-                              margin=settings.next_push_clearance, ball_margin=0.003)
-    index = problem.objects.ids.index(step.object_id)
-    return bool(problem.pushes_valid(problem.start, np.array([index]),
-                                     np.array([step.primitive]),
-                                     np.array([step.push_length]))[0])
 
 
 def _replan_allowed(report: TaskReport, why: list[Divergence], settings: TaskSettings) -> bool:

@@ -266,9 +266,6 @@ class PlannerNode(Node):
                 "executing (a gain below convergence) in this long, s (0: off)"))
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
-        declare("next_push_clearance", 0.0025, _float(0.0, 0.1,
-                "RunTask: replan when the plan's next push, from the observed poses, would "
-                "come closer than this to another object or a table edge, m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
         declare("max_pushes", 150, _integer(1, 10000, "pushes a RunTask may execute"))
         declare("time_budget_s", 900.0, _float(1.0, 86400.0, "wall time a RunTask may take"))
@@ -639,8 +636,7 @@ class PlannerNode(Node):
             stall_s=self._param("stall_s") or None,
             give_up_s=self._param("give_up_s") or None,
             seed=seed if seed >= 0 else self._param("planner_seed"),
-            margin=self._param("planning_margin"),
-            next_push_clearance=self._param("next_push_clearance"))
+            margin=self._param("planning_margin"))
 
     def _check_models(self, reason: str) -> None:
         """Every object needs models; a primitive nothing learned covers (never tried: it was
