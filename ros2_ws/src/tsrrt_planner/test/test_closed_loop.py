@@ -18,7 +18,9 @@ from tsrrt_planner.closed_loop import (
     LearningArea,
     PredictionTracker,
     PushOutcome,
+    TaskReport,
     TaskSettings,
+    _negligible,
     footprint_gap,
     learn_in_place,
     run_task,
@@ -573,6 +575,16 @@ def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
     # the replan may stop once it is within `convergence` (1 %) of what the replaced plan
     # promised
     assert calls[1][2] == pytest.approx(promised + 0.01 * abs(promised))
+
+
+def test_a_long_plan_after_the_first_must_gain_convergence_for_every_ten_pushes() -> None:
+    report = TaskReport(lower_bound=0.08, start_cost=0.38)   # range 0.3: convergence is 0.003
+    settings = TaskSettings()
+    assert not _negligible(0.0035, 0.09, report, settings)              # the first plan
+    assert not _negligible(0.0035, 0.09, report, settings, pushes=10)
+    assert _negligible(0.0035, 0.09, report, settings, pushes=20)      # needs 0.006
+    assert not _negligible(0.0065, 0.09, report, settings, pushes=20)
+    assert _negligible(0.0029, 0.09, report, settings, pushes=3)       # below 0.003 anyway
 
 
 def test_improvement_is_judged_against_the_task_range_when_the_optimum_is_zero() -> None:

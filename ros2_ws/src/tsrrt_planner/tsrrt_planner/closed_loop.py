@@ -504,6 +504,11 @@ class TaskSettings:
     # demos, the 99 that found a gain found it within 1.8 s but three (at most 3.6 s); the
     # other 37 ran their whole budget for nothing (docs/planner.md).
     give_up_s: float | None = 4.0
+    # Every plan but the first must predict a gain of `convergence` (of the task's scale) for
+    # every this many pushes it takes, or the task counts it as none: in 56 demos of sessions
+    # 19-23, plans after the first of 13 or more pushes for a gain below twice `convergence`
+    # realized a fraction of it or lost (docs/planner.md); each push costs the robot ~0.7 s.
+    pushes_per_convergence: int = 10
     # A plan that climbs more than this many times what its detour then gains ends in a
     # detour; steps_worth_executing says when only the part before the climb is executed.
     detour_max_climb: float = 2.0
@@ -686,13 +691,15 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         # what executing the chosen part of the plan predicts (not the unexecuted rest's best)
         report.predicted_cost = float(result.costs[steps])
         improvement = current - float(result.costs[steps])
-        if steps == 0 or _negligible(improvement, current, report, settings):
+        if steps == 0 or _negligible(improvement, current, report, settings,
+                                     pushes=0 if first else steps):
             # Planning takes seconds, and the world may not have waited: converged only if
             # it is still where the plan started (CI: a bump that landed while the last plan
             # was made went unseen, and the task ended 0.022 above what it reported).
             latest = environment.observe()
             moved = PredictionTracker(scenario.objects).diverged(observed, latest)
             if not moved:
+                report.predicted_cost = current   # nothing more is executed
                 report.converged = True
                 report.stop_reason = "converged"
                 return report
@@ -821,11 +828,13 @@ def execution_noise_cost(problem: PlanningProblem, plan: PlanResult, store: Mode
 
 
 def _negligible(improvement: float, cost: float, report: TaskReport,
-               settings: TaskSettings) -> bool:
+                settings: TaskSettings, pushes: int = 0) -> bool:
     """Whether a predicted improvement is below `convergence` of the larger of the cost and
     the task's range (start cost to lower bound), so a zero optimum is not chased to the last
-    micrometre."""
-    return improvement <= settings.convergence * _scale(cost, report)
+    micrometre; for a plan of more than `pushes_per_convergence` pushes, below that much per
+    so many pushes."""
+    per_push = max(1.0, pushes / settings.pushes_per_convergence)
+    return improvement <= settings.convergence * _scale(cost, report) * per_push
 
 
 def _scale(cost: float, report: TaskReport) -> float:

@@ -264,6 +264,9 @@ class PlannerNode(Node):
         declare("give_up_s", 4.0, _float(0.0, 600.0,
                 "RunTask: a plan after the first stops when it has found nothing worth "
                 "executing (a gain below convergence) in this long, s (0: off)"))
+        declare("pushes_per_convergence", 10, _integer(1, 10000,
+                "RunTask: a plan after the first must predict a gain of convergence for every "
+                "this many pushes it takes, or the task has converged"))
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
@@ -635,6 +638,7 @@ class PlannerNode(Node):
             convergence=self._param("convergence"),
             stall_s=self._param("stall_s") or None,
             give_up_s=self._param("give_up_s") or None,
+            pushes_per_convergence=self._param("pushes_per_convergence"),
             seed=seed if seed >= 0 else self._param("planner_seed"),
             margin=self._param("planning_margin"))
 
