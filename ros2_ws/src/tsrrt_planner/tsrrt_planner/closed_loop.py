@@ -499,11 +499,16 @@ class TaskSettings:
     # the best any plan of the task promised (a fresh plan: near the lower bound), has improved by
     # less than `convergence` (of the task's scale) in this many seconds; None: off.
     stall_s: float | None = 2.0
-    # Every plan but the first stops when it has found nothing worth executing (`_negligible`)
+    # A plan after the first stops when it has found nothing worth executing (`_negligible`)
     # in this many seconds; None: off. Re-run from the start states of 136 such plans of 56
     # demos, the 99 that found a gain found it within 1.8 s but three (at most 3.6 s); the
     # other 37 ran their whole budget for nothing (docs/planner.md).
     give_up_s: float | None = 4.0
+    # ... a replan only when it starts within this many times that gain of the best cost the
+    # task was promised. Mid-way through a detour a replan needs its budget: a clean replan at
+    # 0.323 with 0.087 promised had 25 nodes at 4 s and gave up, and the task ended worse than
+    # it began. The 11 logged replans that found nothing started within 5.2 times of it.
+    give_up_near: float = 6.0
     # Every plan but the first must predict a gain of `convergence` (of the task's scale) for
     # every this many pushes it takes, or the task counts it as none: in 56 demos of sessions
     # 19-23, plans after the first of 13 or more pushes for a gain below twice `convergence`
@@ -652,10 +657,11 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             stall = StallRule(settings.stall_s, tolerance, ceiling=expected + tolerance)
         first = math.isnan(report.start_cost)
         give_up = None
-        if not first and settings.give_up_s is not None:
+        worth = settings.convergence * _scale(report.final_cost, report)
+        if not first and settings.give_up_s is not None and (
+                replaced is None or report.final_cost - promised <= settings.give_up_near * worth):
             # nothing worth executing: a gain that `_negligible` calls none
-            give_up = GiveUpRule(settings.give_up_s, report.final_cost - settings.convergence
-                                 * _scale(report.final_cost, report))
+            give_up = GiveUpRule(settings.give_up_s, report.final_cost - worth)
         budget = (max(settings.first_planning_budget_s, settings.planning_budget_s) if first
                   else settings.planning_budget_s)
         task_range = (report.start_cost - lower_bound_cost

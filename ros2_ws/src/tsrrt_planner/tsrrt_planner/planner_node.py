@@ -263,7 +263,11 @@ class PlannerNode(Node):
                 "this long, s (0: off)"))
         declare("give_up_s", 4.0, _float(0.0, 600.0,
                 "RunTask: a plan after the first stops when it has found nothing worth "
-                "executing (a gain below convergence) in this long, s (0: off)"))
+                "executing (a gain below convergence) in this long, s (0: off; replans: see "
+                "give_up_near)"))
+        declare("give_up_near", 6.0, _float(0.0, 1000.0,
+                "RunTask: a replan gives up (give_up_s) only when it starts within this many "
+                "times convergence of the best cost the task was promised"))
         declare("pushes_per_convergence", 10, _integer(1, 10000,
                 "RunTask: a plan after the first must predict a gain of convergence for every "
                 "this many pushes it takes, or the task has converged"))
@@ -638,6 +642,7 @@ class PlannerNode(Node):
             convergence=self._param("convergence"),
             stall_s=self._param("stall_s") or None,
             give_up_s=self._param("give_up_s") or None,
+            give_up_near=self._param("give_up_near"),
             pushes_per_convergence=self._param("pushes_per_convergence"),
             seed=seed if seed >= 0 else self._param("planner_seed"),
             margin=self._param("planning_margin"))
