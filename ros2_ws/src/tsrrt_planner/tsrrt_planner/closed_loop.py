@@ -512,7 +512,7 @@ class TaskSettings:
     # Every plan but the first must predict a gain of `convergence` (of the task's scale) for
     # every this many pushes it takes, or the task counts it as none: in 56 demos of sessions
     # 19-23, plans after the first of 13 or more pushes for a gain below twice `convergence`
-    # realized a fraction of it or lost (docs/planner.md); each push costs the robot ~0.7 s.
+    # mostly realized a fraction of it or lost (docs/planner.md); a push takes ~0.7 s.
     pushes_per_convergence: int = 10
     # A plan that climbs more than this many times what its detour then gains ends in a
     # detour; steps_worth_executing says when only the part before the climb is executed.

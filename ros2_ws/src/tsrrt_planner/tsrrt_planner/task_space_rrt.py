@@ -117,9 +117,9 @@ class SoftDeadline:
 
 @dataclass(frozen=True)
 class GiveUpRule:
-    """Stop a search at `seconds` if its best cost is still above `cost`: from a state a
-    finished plan left, a search that has found nothing worth executing by then rarely does
-    later (docs/planner.md, "Closed loop"), and every second it goes on the robot waits."""
+    """Stop a search at `seconds` if its best cost is still above `cost`: from where a task's
+    plans end, a search that has found nothing worth executing by then rarely does later
+    (docs/planner.md, "Closed loop"), and every second it goes on the robot waits."""
 
     seconds: float
     cost: float
