@@ -648,20 +648,19 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             good_enough = expected + settings.convergence * abs(expected)
         elif not math.isnan(report.start_cost) and math.isfinite(lower_bound_cost):
             expected = lower_bound_cost
+        least = _least_gain(report.final_cost, report, settings)
         if settings.stall_s is not None and math.isfinite(expected):
             # Later plans stop once they stall near that: the obstacle task's replans spent
             # their whole 8 s chasing tenths of a millimetre (51 of 74 s wall planning, session
             # 8). Not before: stalled at -1.51 against -2.00 promised, a tset6 replan settled
             # for the worse basin, and fresh tset3 plans stopped 11 % and 34 % above the bound.
-            tolerance = settings.convergence * _scale(report.final_cost, report)
-            stall = StallRule(settings.stall_s, tolerance, ceiling=expected + tolerance)
+            stall = StallRule(settings.stall_s, least, ceiling=expected + least)
         first = math.isnan(report.start_cost)
         give_up = None
-        worth = settings.convergence * _scale(report.final_cost, report)
         if not first and settings.give_up_s is not None and (
-                replaced is None or report.final_cost - promised <= settings.give_up_near * worth):
+                replaced is None or report.final_cost - promised <= settings.give_up_near * least):
             # nothing worth executing: a gain that `_negligible` calls none
-            give_up = GiveUpRule(settings.give_up_s, report.final_cost - worth)
+            give_up = GiveUpRule(settings.give_up_s, report.final_cost - least)
         budget = (max(settings.first_planning_budget_s, settings.planning_budget_s) if first
                   else settings.planning_budget_s)
         task_range = (report.start_cost - lower_bound_cost
@@ -840,7 +839,13 @@ def _negligible(improvement: float, cost: float, report: TaskReport,
     micrometre; for a plan of more than `pushes_per_convergence` pushes, below that much per
     so many pushes."""
     per_push = max(1.0, pushes / settings.pushes_per_convergence)
-    return improvement <= settings.convergence * _scale(cost, report) * per_push
+    return improvement <= _least_gain(cost, report, settings) * per_push
+
+
+def _least_gain(cost: float, report: TaskReport, settings: TaskSettings) -> float:
+    """`convergence` of the larger of |cost| and the task's range: the least predicted gain
+    worth pushes, and the progress a stalled plan no longer makes."""
+    return settings.convergence * _scale(cost, report)
 
 
 def _scale(cost: float, report: TaskReport) -> float:
