@@ -10,6 +10,7 @@ import faulthandler
 import signal
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -54,6 +55,17 @@ def shutting_down() -> bool:
     holds the process past its stop grace (a fresh-clone CI run killed planner_node 15 s after
     SIGINT)."""
     return not rclpy.ok()
+
+
+def answer_internal_error(node: Node, goal_handle: Any, result: Any, error: Exception) -> None:
+    """Abort a goal whose work raised an exception no error path expects (a bug) with the
+    result's INTERNAL_ERROR code, naming the exception, and log its traceback. Raised out of
+    the callback instead, the goal would end without a result and the client would read the
+    default one, whose code 0 is SUCCESS (a demo reported a crashed task as succeeded)."""
+    node.get_logger().error(traceback.format_exc())
+    result.error_code = result.INTERNAL_ERROR
+    result.error_msg = f"internal error: {type(error).__name__}: {error}"
+    goal_handle.abort()
 
 
 def time_message(seconds: float) -> TimeMessage:

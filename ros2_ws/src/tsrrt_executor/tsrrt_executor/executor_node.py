@@ -34,7 +34,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-import traceback
 
 import numpy as np
 from builtin_interfaces.msg import Duration
@@ -51,6 +50,7 @@ from tsrrt_common.robot_model import ARM_JOINT_NAMES
 from tsrrt_common.ros_node import (
     SETTLE_REQUEST_S,
     ActionClient,
+    answer_internal_error,
     run_node,
     seconds,
     shutting_down,
@@ -394,13 +394,8 @@ class ExecutorNode(Node):
         except Exception as error:   # noqa: BLE001 - a bug: answered, never left unanswered
             if shutting_down():
                 result.error_code, result.error_msg = Result.CANCELED, "the node shut down"
-            else:
-                # Raised out of the callback, the goal would end without a result, and the
-                # client would read the default one: SUCCESS, with zero displacement.
-                self.get_logger().error(traceback.format_exc())
-                result.error_code = Result.INTERNAL_ERROR
-                result.error_msg = f"internal error: {type(error).__name__}: {error}"
-                goal_handle.abort()
+            else:   # read as SUCCESS, a zero displacement would be learned
+                answer_internal_error(self, goal_handle, result, error)
         finally:
             with self.lock:
                 self.busy = False

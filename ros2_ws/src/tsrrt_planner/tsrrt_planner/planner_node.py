@@ -26,7 +26,6 @@ import math
 import os
 import threading
 import time
-import traceback
 from collections.abc import Callable
 from concurrent.futures import Future
 from pathlib import Path
@@ -51,7 +50,13 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tsrrt_common.errors import TsrrtError
 from tsrrt_common.geometry import Pose2D, footprint_polygon
-from tsrrt_common.ros_node import SETTLE_REQUEST_S, ActionClient, run_node, shutting_down
+from tsrrt_common.ros_node import (
+    SETTLE_REQUEST_S,
+    ActionClient,
+    answer_internal_error,
+    run_node,
+    shutting_down,
+)
 from tsrrt_common.scenario import Scenario, load_scenario
 from tsrrt_executor.push_primitives import primitives_for
 from tsrrt_executor.reachability import default_map
@@ -494,13 +499,7 @@ class PlannerNode(Node):
                 result.error_code = GoalFailed("CANCELED", "").code_for(result)
                 result.error_msg = "the node shut down during the goal"
             else:
-                # Raised out of the callback, the goal would end without a result, and the
-                # client would read the default one: SUCCESS (a demo reported a crashed task
-                # as succeeded).
-                self.get_logger().error(traceback.format_exc())
-                result.error_code = result.INTERNAL_ERROR
-                result.error_msg = f"internal error: {type(error).__name__}: {error}"
-                goal_handle.abort()
+                answer_internal_error(self, goal_handle, result, error)
         finally:
             self._busy.release()
         if result.error_code != result.SUCCESS:
