@@ -182,9 +182,24 @@ class Probe(Node):
         assert self.spin_until(future.done, timeout), f"no answer within {timeout} s"
         return future.result()
 
-    def call(self, client, request, timeout: float = 30.0):
+    def call(self, client, request, timeout: float = 30.0, resend_after: float | None = None):
+        """The service's response to `request`. A query that is safe to repeat may pass
+        `resend_after`: the request is then sent again each time no answer came in that long,
+        because rmw_fastrtps drops a response sent before the server has matched a new client's
+        reader, and the client then waits forever (a fresh-clone CI run: GetParameters on a
+        client made just before, no answer in 60 s)."""
         assert client.wait_for_service(timeout_sec=30.0), f"{client.srv_name} not available"
-        return self.wait_for(client.call_async(request), timeout)
+        if resend_after is None:
+            return self.wait_for(client.call_async(request), timeout)
+        deadline = time.monotonic() + timeout
+        futures = []
+        while time.monotonic() < deadline:
+            futures.append(client.call_async(request))
+            wait = min(resend_after, deadline - time.monotonic())
+            if self.spin_until(lambda: any(f.done() for f in futures), wait):
+                return next(f for f in futures if f.done()).result()
+        raise AssertionError(f"no answer within {timeout} s from {client.srv_name} "
+                             f"to {len(futures)} requests")
 
     def send_goal(self, action_client, goal, feedback: list | None = None):
         """Send an action goal; feedback messages (if a list is given) are appended to it."""

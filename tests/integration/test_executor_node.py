@@ -119,7 +119,8 @@ class ExecutorProbe:
         parameter = Parameter(name=name, value=ParameterValue(
             type=ParameterType.PARAMETER_DOUBLE, double_value=value))
         answer = self.probe.call(self.executor_parameters,
-                                 SetParameters.Request(parameters=[parameter]))
+                                 SetParameters.Request(parameters=[parameter]),
+                                 resend_after=10.0)
         assert answer.results[0].successful, answer.results[0].reason
 
     def joint_positions(self) -> np.ndarray:

@@ -138,7 +138,8 @@ def running(refusals, launch, graph_probe):
 
 def parameter_value(probe, node: str, name: str):
     client = probe.create_client(GetParameters, f"/{node}/get_parameters")
-    answer = probe.call(client, GetParameters.Request(names=[name]), timeout=60.0)
+    answer = probe.call(client, GetParameters.Request(names=[name]), timeout=60.0,
+                        resend_after=10.0)
     return Parameter.from_parameter_msg(ParameterMessage(name=name,
                                                          value=answer.values[0])).value
 
@@ -152,7 +153,8 @@ def test_bad_runtime_parameter_is_refused_and_the_old_value_kept(running, what, 
     before = parameter_value(running, node, name)
     client = running.create_client(SetParameters, f"/{node}/set_parameters")
     answer = running.call(client, SetParameters.Request(
-        parameters=[Parameter(name, value=value).to_parameter_msg()]), timeout=60.0)
+        parameters=[Parameter(name, value=value).to_parameter_msg()]), timeout=60.0,
+        resend_after=10.0)
     assert not answer.results[0].successful
     assert fragment in answer.results[0].reason, answer.results[0].reason
     assert parameter_value(running, node, name) == before
