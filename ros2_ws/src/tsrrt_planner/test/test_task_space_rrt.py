@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tsrrt_common.scenario import load_scenario
-from tsrrt_planner.bench import default_models
+from tsrrt_planner.bench import default_models, jittered_problem
 from tsrrt_planner.errors import Cancelled, PlannerError
 from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap, swap_refine
 from tsrrt_planner.model_learning import ModelStore
@@ -20,6 +20,7 @@ from tsrrt_planner.task_space_rrt import (
     MODES,
     TASK_SPACE_RRT,
     GiveUpRule,
+    PlannerConfig,
     PlanStep,
     SoftDeadline,
     StallRule,
@@ -96,6 +97,19 @@ def test_improved_mode_reaches_the_bound_on_tset3(problem, bound):
     result = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=600,
                             lower_bound_cost=bound.cost, target=bound.state)
     assert result.gap() < 0.02
+
+
+def test_without_a_target_the_search_grows_where_directgd_fails_from_the_start():
+    """A tset6 start (the bench's jittered start 3) from which DIRECTGD ends infeasible: with
+    no `target` the search used to retry it from its only node for its whole budget (1 node
+    in 3 s); it must grow the tree towards random states until a descent succeeds."""
+    scenario = load_scenario("tset6")
+    problem = jittered_problem(scenario, ModelStore.load(default_models(scenario)),
+                               (0.02, 0.2), seed=3)
+    assert not local_minimum(problem, problem.start, PlannerConfig().gd_iterations)[2]
+    result = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=20.0, max_nodes=150)
+    assert result.nodes == 150
+    assert result.best_cost < problem.objective.cost(problem.start) - 0.5
 
 
 def test_shortest_within_trades_a_little_cost_for_fewer_pushes(problem, bound):

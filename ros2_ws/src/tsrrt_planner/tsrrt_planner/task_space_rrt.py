@@ -706,22 +706,33 @@ class _TsrrtSearch(_Search):
                 if found is not None:
                     self.add_target(found[0], found[1])
             if not self.targets:
-                continue
-            if self.rng.random() < 0.5:
-                node = self.best
-            else:
-                node = int(self.rng.integers(self.tree.size))
-            target = self.choose_target(self.tree.states[node])
-            if self.rng.random() < self.config.epsilon / 2:
-                sample = target.copy()
-                moved = self.rng.choice(self.problem.n, size=min(2, self.problem.n),
-                                        replace=False)[: int(self.rng.integers(1, 3))]
-                sample[moved] = self.random_config()[moved]
+                # DIRECTGD has ended infeasible from every node so far (without a `target`, a
+                # crowded start can do that every time): grow the tree towards RANDOM_CONFIG,
+                # as Fig. 4 does, so that its next descent starts from somewhere else.
+                sample = self.random_config()
                 self.steer(self.nearest_neighbor(sample), sample)
             else:
-                self.polish(self.rearrange(node, target))
+                self.extend_towards_a_target()
             if self.best not in self.polished:
                 self.polished.add(self.polish(self.best))
+
+    def extend_towards_a_target(self) -> None:
+        """One round with targets: from the best node or a random one, REARRANGE towards the
+        target chosen for it and POLISH, or (probability epsilon / 2) STEER towards that target
+        with one or two objects moved to random poses."""
+        if self.rng.random() < 0.5:
+            node = self.best
+        else:
+            node = int(self.rng.integers(self.tree.size))
+        target = self.choose_target(self.tree.states[node])
+        if self.rng.random() < self.config.epsilon / 2:
+            sample = target.copy()
+            moved = self.rng.choice(self.problem.n, size=min(2, self.problem.n),
+                                    replace=False)[: int(self.rng.integers(1, 3))]
+            sample[moved] = self.random_config()[moved]
+            self.steer(self.nearest_neighbor(sample), sample)
+        else:
+            self.polish(self.rearrange(node, target))
 
     def add_target(self, state: np.ndarray, cost: float) -> None:
         """Keep a local minimum as a target, with its equally good mirror images and quarter
