@@ -179,9 +179,9 @@ class ExecutorNode(Node):
             0.02, 0.5, "ball speed of tool-down moves out of contact (lift, descend, retreat), "
                        "m/s"))
         declare("tool_acceleration", 1.0, _float_range(0.1, 3.0, "ball acceleration, m/s^2"))
-        declare("velocity_scale", 0.5, _float_range(
+        declare("velocity_scale", 0.9, _float_range(
             0.05, 1.0, "fraction of the URDF joint velocity limits used"))
-        declare("acceleration_scale", 0.5, _float_range(
+        declare("acceleration_scale", 0.9, _float_range(
             0.05, 1.0, "fraction of the Panda joint acceleration limits used"))
         declare("sample_period", 0.04, _float_range(
             0.005, 0.2, "time between trajectory points, s"))
