@@ -47,8 +47,8 @@ class TimingSettings:
     transit_speed: float = 0.3        # m/s, lift / transit / descend / retreat
     tool_acceleration: float = 1.0    # m/s^2, ramps of every workspace segment
     # The two joint moves out of and back into the observe posture were 3.5 s of a push's 6 s
-    # at half the limits; at 0.9 they take 2.1 s (clean demos 57-69 s against 53-73 s), and
-    # the 10 % left is the margin a real arm's limit reflexes want.
+    # at half the limits; at 0.9 they take 2.1 s (a clean push 4.5 s simulated instead of
+    # 5.8), and the 10 % left is the margin a real arm's limit reflexes want.
     velocity_scale: float = 0.9       # fraction of the URDF joint velocity limits used
     acceleration_scale: float = 0.9   # fraction of the datasheet joint acceleration limits used
     sample_period: float = 0.04       # s between points (the controller splines between)
