@@ -559,6 +559,9 @@ def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
     stall = calls[1][3]
     assert (stall.window_s, stall.tolerance) == pytest.approx((2.0, 0.01 * task_range))
     assert stall.ceiling == pytest.approx(promised + 0.01 * task_range)
+    # ... and above that only after 3 s without such a gain, once it has one worth executing
+    assert stall.far_window_s == pytest.approx(3.0)
+    assert stall.far_below == pytest.approx(float(calls[1][1].costs[0]) - 0.01 * task_range)
     # a fresh plan after the first stalls only near the lower bound
     fresh = [call for k, call in enumerate(calls) if k > 0 and call[0] is None]
     assert fresh, "the task ended without a fresh plan after its first"

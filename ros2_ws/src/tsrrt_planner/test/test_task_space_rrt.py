@@ -187,11 +187,21 @@ def test_a_good_enough_state_stops_the_search(problem, bound, mode):
 
 def test_a_stalled_search_stops(problem, bound):
     """Any improvement is too little against a huge tolerance: the search stops once the
-    window has passed; against a tolerance of zero it never stalls, nor above its ceiling."""
+    window has passed (above its ceiling, the far window); against a tolerance of zero it never
+    stalls, nor above its ceiling without a far window or above the far window's cost."""
     stalled = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=30.0,
                              lower_bound_cost=bound.cost, target=bound.state,
                              stall=StallRule(0.3, 1e9))
     assert stalled.stop_reason == "stalled" and 0.3 <= stalled.elapsed_s < 5.0
+    far = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=30.0,
+                         lower_bound_cost=bound.cost, target=bound.state,
+                         stall=StallRule(0.3, 1e9, ceiling=bound.cost - 1.0, far_window_s=1.5))
+    assert far.stop_reason == "stalled" and 1.5 <= far.elapsed_s < 6.0
+    no_gain_yet = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=1.0,
+                                 lower_bound_cost=bound.cost, target=bound.state,
+                                 stall=StallRule(0.3, 1e9, ceiling=bound.cost - 1.0,
+                                                 far_window_s=0.3, far_below=bound.cost - 1.0))
+    assert no_gain_yet.stop_reason == "time"
     for patient in (StallRule(0.3, 0.0), StallRule(0.3, 1e9, ceiling=bound.cost - 1.0)):
         result = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=1.0,
                                 lower_bound_cost=bound.cost, target=bound.state, stall=patient)
@@ -200,8 +210,9 @@ def test_a_stalled_search_stops(problem, bound):
 
 @pytest.mark.parametrize("kwargs,message", [
     ({"mode": "astar"}, "unknown planner mode"),
-    ({"stall": StallRule(0.0, 0.1)}, "stall rule needs a window"),
-    ({"stall": StallRule(1.0, -0.1)}, "stall rule needs a window"),
+    ({"stall": StallRule(0.0, 0.1)}, "stall rule needs windows"),
+    ({"stall": StallRule(1.0, -0.1)}, "stall rule needs windows"),
+    ({"stall": StallRule(1.0, 0.1, far_window_s=0.0)}, "stall rule needs windows"),
     ({"time_budget_s": None}, "give a time budget"),
     ({"time_budget_s": -1.0}, "time budget must be > 0"),
     ({"max_nodes": 0}, "node budget"),

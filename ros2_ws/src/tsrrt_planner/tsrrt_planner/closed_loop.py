@@ -499,6 +499,14 @@ class TaskSettings:
     # the best any plan of the task promised (a fresh plan: near the lower bound), has improved by
     # less than `convergence` (of the task's scale) in this many seconds; None: off.
     stall_s: float | None = 2.0
+    # ... and, above that, once it has found a gain worth executing and improved by less than
+    # `convergence` in this many seconds; None: never. Re-run offline from the logged starts of
+    # 35 plans after the first (14 demos, session 24), a 3-s window stopped them at most 1.4
+    # times `convergence` above where the 8-s plan ended (a 2-s window: up to 59 times, as a
+    # tset6 replan once settled for the basin). Before a gain worth executing it would end a
+    # task: a clean replan from a wedged row stopped at 3.2 s with 0.1284 -> 0.1266, a gain
+    # too small to execute, where 8 s find 0.1216.
+    stall_far_s: float | None = 3.0
     # A plan after the first stops when it has found nothing worth executing (`_negligible`)
     # in this many seconds; None: off. Re-run from the start states of 136 such plans of 56
     # demos, the 99 that found a gain found it within 1.8 s but three (at most 3.6 s); the
@@ -654,7 +662,9 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             # their whole 8 s chasing tenths of a millimetre (51 of 74 s wall planning, session
             # 8). Not before: stalled at -1.51 against -2.00 promised, a tset6 replan settled
             # for the worse basin, and fresh tset3 plans stopped 11 % and 34 % above the bound.
-            stall = StallRule(settings.stall_s, least, ceiling=expected + least)
+            stall = StallRule(settings.stall_s, least, ceiling=expected + least,
+                              far_window_s=settings.stall_far_s or math.inf,
+                              far_below=report.final_cost - least)
         first = math.isnan(report.start_cost)
         give_up = None
         if not first and settings.give_up_s is not None and (

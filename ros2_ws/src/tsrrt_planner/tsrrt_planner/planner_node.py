@@ -266,6 +266,9 @@ class PlannerNode(Node):
                 "RunTask: a plan after the first stops when, near what the plan it replaces "
                 "promised (or the lower bound), its best improves by less than convergence in "
                 "this long, s (0: off)"))
+        declare("stall_far_s", 3.0, _float(0.0, 600.0,
+                "RunTask: ... and, farther from it, when its best improves by less than "
+                "convergence in this long, s (0: never)"))
         declare("give_up_s", 4.0, _float(0.0, 600.0,
                 "RunTask: a plan after the first stops when it has found nothing worth "
                 "executing (a gain below convergence) in this long, s (0: off; replans: see "
@@ -640,6 +643,7 @@ class PlannerNode(Node):
             time_budget_s=time_budget_s or self._param("time_budget_s"),
             convergence=self._param("convergence"),
             stall_s=self._param("stall_s") or None,
+            stall_far_s=self._param("stall_far_s") or None,
             give_up_s=self._param("give_up_s") or None,
             give_up_near=self._param("give_up_near"),
             pushes_per_convergence=self._param("pushes_per_convergence"),

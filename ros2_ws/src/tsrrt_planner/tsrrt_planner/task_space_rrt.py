@@ -98,11 +98,16 @@ class ProgressInfo:
 class StallRule:
     """Stop a search whose best cost has improved by less than `tolerance` in the last
     `window_s` seconds, once that best is at or below `ceiling` (a replan keeps searching until
-    it is near what the plan it replaces promised)."""
+    it is near what the plan it replaces promised), or in the last `far_window_s` seconds
+    while it is above it but at or below `far_below` (a longer wait: far from the ceiling the
+    search finds its way down in steps seconds apart; and a search that has found no gain worth
+    executing, above `far_below`, is left to its budget or a GiveUpRule)."""
 
     window_s: float
     tolerance: float
     ceiling: float = math.inf
+    far_window_s: float = math.inf
+    far_below: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -275,9 +280,15 @@ class _Search:
 
     def stalled(self, rule: StallRule) -> bool:
         now = self.elapsed()
-        if now < rule.window_s or self.best_cost > rule.ceiling:
+        if self.best_cost <= rule.ceiling:
+            window = rule.window_s
+        elif self.best_cost <= rule.far_below:
+            window = rule.far_window_s
+        else:
             return False
-        then = bisect.bisect_right(self.trace, now - rule.window_s, key=lambda entry: entry[0])
+        if now < window:
+            return False
+        then = bisect.bisect_right(self.trace, now - window, key=lambda entry: entry[0])
         return self.trace[max(then - 1, 0)][2] - self.best_cost < rule.tolerance
 
     def add_node(self, parent: int, state: np.ndarray, action: tuple[int, int, float]) -> int:
@@ -1183,8 +1194,9 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         raise PlannerError(f"epsilon must be within [0, 1], got {config.epsilon}")
     if not shortest_within >= 0.0:
         raise PlannerError(f"shortest_within must be >= 0, got {shortest_within}")
-    if stall is not None and not (stall.window_s > 0 and stall.tolerance >= 0):
-        raise PlannerError(f"a stall rule needs a window > 0 s and a tolerance >= 0, got "
+    if stall is not None and not (stall.window_s > 0 and stall.far_window_s > 0
+                                  and stall.tolerance >= 0):
+        raise PlannerError(f"a stall rule needs windows > 0 s and a tolerance >= 0, got "
                            f"{stall}")
     for name, state in (("target", target), ("previous_goal", previous_goal)):
         if state is not None and np.shape(state) != problem.start.shape:
