@@ -267,8 +267,8 @@ class PlannerNode(Node):
                 "promised (or the lower bound), its best improves by less than convergence in "
                 "this long, s (0: off)"))
         declare("stall_far_s", 3.0, _float(0.0, 600.0,
-                "RunTask: ... and, farther from it, when its best improves by less than "
-                "convergence in this long, s (0: never)"))
+                "RunTask: ... and, farther from it but with a gain worth executing, when its "
+                "best improves by less than convergence in this long, s (0: never)"))
         declare("give_up_s", 4.0, _float(0.0, 600.0,
                 "RunTask: a plan after the first stops when it has found nothing worth "
                 "executing (a gain below convergence) in this long, s (0: off; replans: see "
