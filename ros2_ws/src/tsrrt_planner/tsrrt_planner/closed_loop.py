@@ -657,6 +657,9 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         elif not math.isnan(report.start_cost) and math.isfinite(lower_bound_cost):
             expected = lower_bound_cost
         least = _least_gain(report.final_cost, report, settings)
+        # the cost a plan must reach for a gain worth executing (one `_negligible` does not
+        # call none): the far stall waits for it, the give-up rule stops without it
+        worth_executing = report.final_cost - least
         if settings.stall_s is not None and math.isfinite(expected):
             # Later plans stop once they stall near that: the obstacle task's replans spent
             # their whole 8 s chasing tenths of a millimetre (51 of 74 s wall planning, session
@@ -664,13 +667,12 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
             # for the worse basin, and fresh tset3 plans stopped 11 % and 34 % above the bound.
             stall = StallRule(settings.stall_s, least, ceiling=expected + least,
                               far_window_s=settings.stall_far_s or math.inf,
-                              far_below=report.final_cost - least)
+                              far_below=worth_executing)
         first = math.isnan(report.start_cost)
         give_up = None
         if not first and settings.give_up_s is not None and (
                 replaced is None or report.final_cost - promised <= settings.give_up_near * least):
-            # nothing worth executing: a gain that `_negligible` calls none
-            give_up = GiveUpRule(settings.give_up_s, report.final_cost - least)
+            give_up = GiveUpRule(settings.give_up_s, worth_executing)
         budget = (max(settings.first_planning_budget_s, settings.planning_budget_s) if first
                   else settings.planning_budget_s)
         task_range = (report.start_cost - lower_bound_cost
