@@ -17,7 +17,9 @@ from tsrrt_planner.rearrange import (
     _expand,
     _key,
     blockers_of,
+    clear_of_way,
     corridor_blocks,
+    footprints_clear,
     object_error,
     object_path,
     parking_poses,
@@ -212,6 +214,29 @@ def test_blockers_and_parking():
         gap = problem.checker.shapes.pair_signed_distance(
             np.array([0]), parked[[0]], np.array([1]), parked[[1]])
         assert gap[0] >= problem.checker.margin
+
+
+
+def test_parking_falls_back_on_other_pending_targets(problem):
+    """On tset6's start with every object bound for the lower bound's state, no free pose for
+    plate_3 (in plate_2's way) is clear of every other pending target; parking still offers
+    poses, those over the fewest pending targets first, each out of plate_2's way."""
+    target = lower_bound(problem, starts=2).state
+    pending = list(range(problem.n))
+    blocked, parked = 1, 2
+    assert parked in blockers_of(problem, problem.start, target, blocked)
+    poses = parking_poses(problem, problem.start, target, parked, pending,
+                          np.random.default_rng(0), blocked)
+    assert len(poses)
+    others = [k for k in pending if k not in (blocked, parked)]
+    k = len(poses)
+    covered = sum(~footprints_clear(problem, np.full(k, parked), poses, np.full(k, other),
+                                    np.repeat(target[other][None], k, 0))
+                  for other in others)
+    assert covered.min() >= 1 and np.all(np.diff(covered) >= 0)
+    assert clear_of_way(problem, problem.start, target, parked, poses, blocked).all()
+    assert problem.checker.moved_objects_valid(problem.start, np.full(len(poses), parked),
+                                               poses).all()
 
 
 def test_equivalent_targets_are_equally_good_and_valid(problem):

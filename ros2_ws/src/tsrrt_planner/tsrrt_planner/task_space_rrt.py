@@ -42,6 +42,7 @@ from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.rearrange import (
     blockers_of,
+    clear_of_way,
     corridor_blocks,
     object_error,
     object_path,
@@ -842,8 +843,8 @@ class _TsrrtSearch(_Search):
 
     def park(self, node: int, target: np.ndarray, order: list[int], pending: list[int],
              parked: dict[int, int]) -> int | None:
-        """Move an object in the way of one of the first pending objects in `order` to a free
-        pose off every pending target (adding it to `pending`); None when none could move.
+        """Move an object in the way of one of the first pending objects in `order` out of
+        that one's way (parking_poses; adding it to `pending`); None when none could move.
         Pending objects are parked before placed ones, and none more than MAX_PARKINGS times
         per REARRANGE (`parked` counts them), so parking cannot go round in circles."""
         problem = self.problem
@@ -864,6 +865,11 @@ class _TsrrtSearch(_Search):
                 searches += 1
                 path, reached = object_path(problem, state, j, pose, self.weights[j],
                                             self.check_budget, PARKING_TOLERANCE)
+                if path and not reached:
+                    # short of the parking pose may still be out of the way
+                    end = simulate_from(problem, state, path)[j]
+                    reached = bool(clear_of_way(problem, state, target, j, end[None],
+                                                blocked)[0])
                 if reached and path:
                     if j not in pending:
                         pending.append(j)
