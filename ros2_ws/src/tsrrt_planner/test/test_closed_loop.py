@@ -102,6 +102,31 @@ def _walk_near_edge_and_neighbour(area_on: bool):
     return result, worst_edge, worst_gap
 
 
+
+def test_learning_leaves_room_for_an_object_still_to_be_learned() -> None:
+    """The remote's learning walk (pusher seed 0) ends 1.4 cm from the eraser, which started
+    5 cm away; with the eraser still to be learned, the learned remote is pushed on until it
+    is LEAVE_ROOM away again."""
+    scenario = load_scenario("clean")
+    remote, eraser = scenario.object("remote"), scenario.object("eraser")
+    start = Pose2D(*scenario.table.center, 0.0)
+    eraser_pose = Pose2D(start.x, start.y + remote.width / 2.0 + 0.05 + eraser.width / 2.0,
+                         0.0)
+
+    def learn(waiting: frozenset[str]) -> tuple[bool, float]:
+        pusher = SimulatedPusher(scenario.objects, seed=0)
+        pusher.poses["remote"] = start
+        area = LearningArea(scenario.table, ((eraser, eraser_pose),), waiting=waiting)
+        result = learn_in_place(remote, start, _executor(pusher), ConfidenceStoppingRule(),
+                                area=area)
+        return result.converged, footprint_gap(remote, result.pose, eraser, eraser_pose)
+
+    converged, gap = learn(frozenset())
+    assert converged and gap < closed_loop.LEAVE_ROOM   # the walk does crowd the eraser
+    converged, gap = learn(frozenset({"eraser"}))
+    assert converged and gap >= closed_loop.LEAVE_ROOM
+
+
 def test_learning_area_keeps_the_object_off_the_edge_and_away_from_neighbours() -> None:
     result, worst_edge, worst_gap = _walk_near_edge_and_neighbour(area_on=True)
     assert result.converged and set(result.models) == {1, 2, 3, 4, 5, 6}

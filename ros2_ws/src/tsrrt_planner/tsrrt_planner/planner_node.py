@@ -550,10 +550,10 @@ class PlannerNode(Node):
                                          cancelled)
         trials = 0
         self.unreachable = set()
-        for object_id in ids:
+        to_learn = [i for i in ids if self._needs_learning(
+            i, primitives_for(self.scenario.object(i).shape), rule)]
+        for k, object_id in enumerate(to_learn):
             spec = self.scenario.object(object_id)
-            if not self._needs_learning(object_id, primitives_for(spec.shape), rule):
-                continue
             observed = environment.observe()
             pose = observed[object_id]
             if out_of_reach(dataclasses.replace(spec, pose=pose), self.reachability,
@@ -567,7 +567,8 @@ class PlannerNode(Node):
                 [(o, observed[o.id]) for o in self.scenario.objects if o.id != object_id]
                 + [(o, o.pose) for o in self.scenario.obstacles]),
                 edge_margin=self._param("learning_edge_margin"),
-                clearance=self._param("learning_clearance"), reach=self.reachability)
+                clearance=self._param("learning_clearance"), reach=self.reachability,
+                waiting=frozenset(to_learn[k + 1:]))
             self.get_logger().info(f"learning push models of {object_id}")
             done_before = trials
             outcome = learn_in_place(
