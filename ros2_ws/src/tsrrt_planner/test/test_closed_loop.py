@@ -102,7 +102,6 @@ def _walk_near_edge_and_neighbour(area_on: bool):
     return result, worst_edge, worst_gap
 
 
-
 def test_learning_leaves_room_for_an_object_still_to_be_learned() -> None:
     """The remote's learning walk (pusher seed 0) ends 1.4 cm from the eraser, which started
     5 cm away; with the eraser still to be learned, the learned remote is pushed on until it

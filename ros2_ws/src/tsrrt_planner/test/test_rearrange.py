@@ -216,7 +216,6 @@ def test_blockers_and_parking():
         assert gap[0] >= problem.checker.margin
 
 
-
 def test_parking_falls_back_on_other_pending_targets(problem):
     """On tset6's start with every object bound for the lower bound's state, no free pose for
     plate_3 (in plate_2's way) is clear of every other pending target; parking still offers

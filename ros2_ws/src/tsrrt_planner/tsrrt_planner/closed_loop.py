@@ -95,13 +95,13 @@ REPOSITION_GAIN = 0.005
 # Room (m) a primitive out of the arm's reach costs: learning walks objects back into reach.
 UNREACHABLE_PUSH_COST = 0.05
 # Where the nominal push does not fit, a learning trial may be this fraction of it.
+LEARNING_PUSH_FRACTIONS = (1.0, 0.6, 0.4)
 # Gap (m) an object left by its learning keeps from an object still to be learned, if its
 # learning took it closer: room for the ball (2.5 cm) to push that one away from it. Clean's
 # remote, learned second, ended 1.3 cm from the eraser in 3 of 3 demos of session 25; the
 # eraser, between the remote and the table edge, could then learn only 2 of its 6 primitives
 # and the tasks ended 10-15 % above the bound.
 LEAVE_ROOM = 0.03
-LEARNING_PUSH_FRACTIONS = (1.0, 0.6, 0.4)
 # An object's own model with at least this many trials sets aside executed pushes it does not
 # explain (update_model_with_push); with fewer, its spread says too little to judge by.
 GATE_MIN_TRIALS = 3
