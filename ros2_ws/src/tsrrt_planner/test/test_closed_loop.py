@@ -487,6 +487,31 @@ def _task(name: str, seed: int, bump_after: int | None = None):
     return scenario, report
 
 
+def test_a_first_plan_far_above_the_bound_is_made_again_with_the_next_seed(monkeypatch) -> None:
+    """The first search is cut to its start (paper mode, 1 node: 90 % above tset3's bound); the
+    task makes the first plan again with seed 1 and executes that one."""
+    seeds = []
+
+    def first_one_fails(problem, mode, seed, **kwargs):
+        seeds.append(seed)
+        if len(seeds) == 1:
+            kwargs["max_nodes"] = 1
+            mode = "paper-nogd"
+        return TASK_SPACE_RRT(problem, mode, seed, **kwargs)
+
+    monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", first_one_fails)
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
+    settings = TaskSettings(planning_budget_s=30.0, planning_max_nodes=150, max_pushes=30)
+    plans = []
+    report = run_task(scenario, store, _SimulatedRobot(scenario, seed=100), AnnulusReachability(),
+                      settings, bound.cost, target=bound.state, on_plan=plans.append)
+    assert seeds[:2] == [0, 1]
+    assert plans[0].mode == "tsrrt" and plans[0].seed == 1 and plans[0].steps
+    assert report.pushes > 0 and report.final_cost < report.start_cost
+
+
 def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
     budgets, deadlines = [], []
 

@@ -69,6 +69,7 @@ from tsrrt_executor.push_primitives import (
 )
 from tsrrt_planner.collision import footprint_signed_distance
 from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.lower_bound import relative_gap
 from tsrrt_planner.model_learning import (
     MIRROR_PARTNER,
     DisplacementStats,
@@ -102,6 +103,12 @@ LEARNING_PUSH_FRACTIONS = (1.0, 0.6, 0.4)
 # eraser, between the remote and the table edge, could then learn only 2 of its 6 primitives
 # and the tasks ended 10-15 % above the bound.
 LEAVE_ROOM = 0.03
+# A task's first plan that ends more than this far above the lower bound (relative gap) is
+# made again with the next seed, and the better one kept. Inside the graph the planner makes
+# 50-90 nodes a second against 150-230 offline; from the start of session 25's reproduce_paper
+# tset6 run, first plans of its 536 nodes (seeds 0-9) ended 3.4-4.8 % above the bound six
+# times and 25-65 % four times (that run's own: 65 %, and the task ended there).
+FIRST_PLAN_RETRY_GAP = 0.2
 # An object's own model with at least this many trials sets aside executed pushes it does not
 # explain (update_model_with_push); with fewer, its spread says too little to judge by.
 GATE_MIN_TRIALS = 3
@@ -716,6 +723,19 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                                     task_range=task_range,
                                     extend_above_gap=settings.first_plan_gap if first else None,
                                     refused=refusals, give_up=give_up)
+        gap = relative_gap(result.best_cost, lower_bound_cost)
+        if first and gap is not None and gap > FIRST_PLAN_RETRY_GAP and not cancelled():
+            # the first plan chooses the basin: one that ended far above the bound gets a
+            # second search with the next seed, and the better of the two is executed
+            _, retry = plan_from(scenario, observed, store, reachability,
+                                 dataclasses.replace(settings, seed=settings.seed + 1),
+                                 lower_bound_cost, target, cancelled, budget_s=budget,
+                                 task_range=task_range, extend_above_gap=settings.first_plan_gap,
+                                 refused=refusals)
+            spent = result.elapsed_s + retry.elapsed_s
+            if retry.best_cost < result.best_cost:
+                result = retry
+            report.planning_s += spent - result.elapsed_s   # the kept plan's is added below
         replaced = None
         promised = min(promised, float(np.min(result.costs)))
         report.planning_s += result.elapsed_s
