@@ -281,6 +281,13 @@ def expected_displacement(spec: ObjectSpec, primitive: int, statistics: Displace
             / transfer_efficiency(spec.friction))
 
 
+def repositioning_push(after: Mapping[int, float], now: float) -> int | None:
+    """The primitive whose push leaves the most of what `after` measures (room, gap), if that
+    gains more than REPOSITION_GAIN over `now`; None when none does."""
+    better = [p for p, value in after.items() if value > now + REPOSITION_GAIN]
+    return max(better, key=after.__getitem__) if better else None
+
+
 def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: StoppingRule,
                    push_length: float = DEFAULT_PUSH_LENGTH, max_rounds: int = 40,
                    on_trial: Callable[[LearningProgress], None] | None = None,
@@ -361,22 +368,22 @@ def learn_in_place(spec: ObjectSpec, pose: Pose2D, execute: Execute, rule: Stopp
         if not pending:
             # learned, but crowding an object still to learn: push it away with what it learned
             assert area is not None
-            gap_now = area.crowding(spec, pose)
-            wider = [p for p in options
-                     if area.crowding(spec, options[p][2]) > gap_now + REPOSITION_GAIN]
-            if not wider:
+            widest = repositioning_push(
+                {p: area.crowding(spec, after) for p, (_, _, after) in options.items()},
+                area.crowding(spec, pose))
+            if widest is None:
                 return result(True)
-            primitive = max(wider, key=lambda p: area.crowding(spec, options[p][2]))
+            primitive = widest
         elif learning:
             primitive = min(learning, key=lambda p: (
                 statistics[p].count + (rule.min_trials - 1) * waits_for_partner(p),
                 -options[p][1]))
         else:
-            room_now = area.room(spec, pose) if area is not None else 0.0
-            better = [p for p in options if options[p][1] > room_now + REPOSITION_GAIN]
-            if not better:
+            roomiest = repositioning_push({p: room for p, (_, room, _) in options.items()},
+                                          area.room(spec, pose) if area is not None else 0.0)
+            if roomiest is None:
                 return result(False)
-            primitive = max(better, key=lambda p: options[p][1])
+            primitive = roomiest
         length = options[primitive][0]
         try:
             outcome = execute(spec.id, primitive, length)
