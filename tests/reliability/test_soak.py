@@ -1,12 +1,12 @@
-"""Load (issue 7): 20 consecutive tasks in one graph, then the nodes stopped by SIGINT and, in a
+"""Load (issue 7): 30 consecutive tasks in one graph, then the nodes stopped by SIGINT and, in a
 second graph, by SIGTERM.
 
 Before each task the simulator loads tests/data/two_boxes_one_push.yaml (two_boxes with a push
 or two left), so every RunTask has work to do and ends converged in a few seconds; perception
-and the planner run on two_boxes.yaml, as in the other graph tests. Each node's resident memory
-(its child processes included: the sim's renderer) must grow by less than 10 % from task 2 to
-task 20 (task 1 warms caches up), and neither its threads nor its child processes may pile up.
-Figures are printed for docs/reliability.md ("Load"); run with -s to see them.
+and the planner run on two_boxes.yaml, as in the other graph tests. No node may leak resident
+memory (its child processes included: the sim's renderer), threads or child processes. The
+issue's target, < 10 % growth from task 2 to task 20 (task 1 warms caches up), is printed for
+docs/reliability.md ("Load"); run with -s to see it.
 """
 
 from __future__ import annotations
@@ -25,19 +25,22 @@ from task_graph import DATA, TaskGraph, describe  # noqa: E402
 
 from tsrrt_interfaces.action import RunTask  # noqa: E402
 
-TASKS = 20
+TASKS = 30
 BASELINE_TASK = 2
-# Issue 7's target is < 10 % RSS growth from task 2 to task 20: printed (FIGURES) and reported
-# in docs/reliability.md, since targets are measured, not asserted. What is asserted is the
-# absence of a leak: a leak grows linearly, warm-up of the allocator and caches levels off, so
-# the second half of the soak (task 11 to 20) may add at most LEAK_GROWTH. Each end is the
-# median of three tasks' samples: one sample can be megabytes above its neighbours (most likely
-# perception holding a frame's images at that moment; CI: perception 177 MB after task 19, 189
-# after task 20, the ten before within 177-183).
-LEAK_FROM_TASK = 11
+TARGET_TASK = 20
+# Issue 7's target is < 10 % RSS growth from task 2 to task 20 (TARGET_TASK): printed (FIGURES)
+# and reported in docs/reliability.md, since targets are measured, not asserted. What is asserted
+# is the absence of a leak: a leak grows linearly, warm-up of the allocator and caches levels off,
+# so the soak's last half (task 16 to 30) may add at most LEAK_GROWTH. Each end is the median of
+# three tasks' samples: one sample can be megabytes above its neighbours (most likely perception
+# holding a frame's images at that moment; CI: perception 177 MB after task 19, 189 after task
+# 20, the ten before within 177-183). With 20 tasks and the window from task 11, perception's
+# warm-up failed the check twice in CI (4.7 % and 4.5 %, sessions 17 and 26); over 60 tasks it
+# levels off at 163-165 MB from task 7 on, and its Python heap does not grow (tracemalloc).
+LEAK_FROM_TASK = 16
 LEAK_GROWTH = 0.04
 # Thread pools (rclpy's executors, the planner's) may start a worker late; a leak of one per
-# task would add 18 between task 2 and task 20.
+# task would add 28 between task 2 and task 30.
 THREAD_SLACK = 4
 ONE_PUSH = DATA / "two_boxes_one_push.yaml"
 NODES = ("sim_node", "perception_node", "executor_node", "planner_node")
@@ -79,7 +82,7 @@ def _median_rss(samples: dict[int, dict[str, dict]], name: str, task: int) -> fl
     return sorted(samples[t][name]["rss"] for t in (task - 1, task, task + 1))[1]
 
 
-def test_twenty_tasks_without_growth_then_sigint(graph: TaskGraph):
+def test_thirty_tasks_without_growth_then_sigint(graph: TaskGraph):
     samples: dict[int, dict[str, dict]] = {}
     durations = []
     for task in range(1, TASKS + 1):
@@ -94,7 +97,7 @@ def test_twenty_tasks_without_growth_then_sigint(graph: TaskGraph):
         assert status == GoalStatus.STATUS_SUCCEEDED, f"{summary}\n{graph.logs()}"
         assert result.pushes >= 1 and final_cost < start_cost, summary
         samples[task] = {name: footprint(graph.processes[name].popen.pid) for name in NODES}
-    first, last = samples[BASELINE_TASK], samples[TASKS]
+    first, last = samples[BASELINE_TASK], samples[TARGET_TASK]
     figures = {name: {"rss_mb": (round(first[name]["rss"] / 2**20, 1),
                                  round(last[name]["rss"] / 2**20, 1)),
                       "growth": round(last[name]["rss"] / first[name]["rss"] - 1.0, 3),
@@ -112,8 +115,9 @@ def test_twenty_tasks_without_growth_then_sigint(graph: TaskGraph):
             f"{name}: RSS still grew {late_growth:.1%} from around task {LEAK_FROM_TASK} to "
             f"around task {TASKS - 1} (medians of three) "
             f"({figures[name]}; MB per task {series[name]})")
-        assert last[name]["threads"] <= first[name]["threads"] + THREAD_SLACK, figures[name]
-        assert last[name]["children"] == first[name]["children"], figures[name]
+        end = samples[TASKS][name]
+        assert end["threads"] <= first[name]["threads"] + THREAD_SLACK, (name, end)
+        assert end["children"] == first[name]["children"], (name, end)
     assert_stops_cleanly(graph, signal.SIGINT)
 
 
