@@ -35,7 +35,7 @@ TARGET_TASK = 20
 # three tasks' samples: one sample can be megabytes above its neighbours (most likely perception
 # holding a frame's images at that moment; CI: perception 177 MB after task 19, 189 after task
 # 20, the ten before within 177-183). With 20 tasks and the window from task 11, perception's
-# warm-up failed the check twice in CI (4.7 % and 4.5 %, sessions 17 and 26); over 60 tasks it
+# warm-up failed the check twice in CI (4.7 % and 4.5 %, sessions 17 and 25); over 60 tasks it
 # levels off at 163-165 MB from task 7 on, and its Python heap does not grow (tracemalloc).
 LEAK_FROM_TASK = 16
 LEAK_GROWTH = 0.04

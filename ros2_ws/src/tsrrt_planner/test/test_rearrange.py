@@ -220,8 +220,8 @@ def test_parking_falls_back_on_other_pending_targets(problem):
     """On tset6's start with every object bound for the lower bound's state, parking plate_3
     (in plate_2's way) offers poses over other pending targets too, ranked after those over
     fewer, each out of plate_2's way. (Where the bound's descent ends depends on the CPU's
-    floating point: with AVX2 no pose was clear of every pending target, with AVX-512 five
-    of eight were.)"""
+    floating point: on the machine this was written on no pose was clear of every pending
+    target, on an AVX-512 machine five of eight were.)"""
     target = lower_bound(problem, starts=2).state
     pending = list(range(problem.n))
     blocked, parked = 1, 2
