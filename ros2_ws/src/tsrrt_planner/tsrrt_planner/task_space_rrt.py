@@ -84,6 +84,14 @@ Cancel = Callable[[], bool] | threading.Event
 
 
 @dataclass(frozen=True)
+class Target:
+    """A local minimum the tsrrt search steers towards."""
+    cost: float
+    state: np.ndarray   # (n, 3)
+    heading_steps: np.ndarray   # (n,) turns in place that keep the cost (`heading_steps`)
+
+
+@dataclass(frozen=True)
 class PlannerConfig:
     """Tunables; defaults are the paper's where it gives one."""
 
@@ -700,14 +708,14 @@ class _TsrrtSearch(_Search):
             self.time_budget_s *= self.search_share
         self.previous_goal = previous_goal
         self.groups = interchangeable_groups(self.problem)
-        self.targets: list[tuple[float, np.ndarray]] = []
+        self.targets: list[Target] = []
         self.polished: set[int] = set()  # nodes where polishing found nothing more
         self.max_parkings = max(MIN_PARKINGS, self.problem.n // OBJECTS_PER_PARKING)
         if target is not None:
             self.add_target(np.asarray(target, float),
                             float(self.problem.objective.cost(target)))
             self.problem = self.problem.with_face_allowance(
-                [variant for _, variant in self.targets], self.groups)
+                [target.state for target in self.targets], self.groups)
 
     def run(self) -> None:
         if self.previous_goal is not None:
@@ -756,21 +764,30 @@ class _TsrrtSearch(_Search):
 
     def add_target(self, state: np.ndarray, cost: float) -> None:
         """Keep a local minimum as a target, with its equally good mirror images and quarter
-        turns of its clusters (`equivalent_targets`)."""
+        turns of its clusters (`equivalent_targets`), and the turns in place that leave each
+        object's cost unchanged (`heading_steps`)."""
         for variant in equivalent_targets(self.problem, state):
-            self.targets.append((cost, variant))
+            self.targets.append(Target(cost, variant, heading_steps(self.problem, variant, cost)))
 
     def choose_target(self, state: np.ndarray) -> np.ndarray:
         """A target for extending from `state` (n, 3): usually the near-optimal target (within
         NEAR_OPTIMAL of the best) closest to `state` under rho after matching interchangeable
-        objects, sometimes any target at random (other basins)."""
-        best_cost = min(cost for cost, _ in self.targets)
-        near = [target for cost, target in self.targets
-                if cost <= best_cost + NEAR_OPTIMAL * abs(best_cost)]
+        objects and turning objects in place to their equally good heading nearest to
+        `state`'s, sometimes any target at random (other basins)."""
+        best_cost = min(target.cost for target in self.targets)
+        near = [target for target in self.targets
+                if target.cost <= best_cost + NEAR_OPTIMAL * abs(best_cost)]
         if self.rng.random() < 0.2:
-            near = [self.targets[int(self.rng.integers(len(self.targets)))][1]]
-        matched = np.array([match_to(self.groups, target, state) for target in near])
-        return matched[int(np.argmin(self.rho(matched, state)))]
+            near = [self.targets[int(self.rng.integers(len(self.targets)))]]
+        orders = [assignment(self.groups, target.state, state) for target in near]
+        turned = np.array([
+            turned_towards(target.state[order], target.heading_steps[order], state)
+            for target, order in zip(near, orders, strict=True)])
+        k = int(np.argmin(self.rho(turned, state)))
+        if equally_good(self.problem, turned[k], near[k].cost):
+            return turned[k]
+        # turned one by one, two boxes may overlap: the target as found then
+        return near[k].state[orders[k]]
 
     def rearrange(self, node: int, target: np.ndarray) -> int:
         """REARRANGE (rearrange.py): move the objects to `target` (inset from the table
@@ -1141,14 +1158,45 @@ def mirror_images(problem: PlanningProblem, state: np.ndarray) -> list[np.ndarra
     return images
 
 
-def match_to(groups: list[np.ndarray], target: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """`target` with interchangeable objects reassigned to minimise their travel from `state`."""
-    matched = target.copy()
+def assignment(groups: list[np.ndarray], target: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """The slots of `target` (n, 3) to give each object, `target[order]`: interchangeable
+    objects reassigned to minimise their travel from `state`."""
+    order = np.arange(len(target))
     for group in groups:
         distance = np.linalg.norm(state[group, None, :2] - target[None, group, :2], axis=-1)
         rows, columns = linear_sum_assignment(distance)
-        matched[group[rows]] = target[group[columns]]
-    return matched
+        order[group[rows]] = group[columns]
+    return order
+
+
+def heading_steps(problem: PlanningProblem, state: np.ndarray, cost: float) -> np.ndarray:
+    """Per object of `state` (n, 3), the turns in place that leave its cost unchanged: 0 when
+    any turn does (no term reads its heading there), pi/2 when quarter turns do (orthogonality
+    and alignment read headings modulo pi/2), inf when none does. The lower bound picks one of
+    such equally good headings by rounding noise (two_boxes: eraser and remote turned by 90
+    degrees at 1e-10 below the unturned optimum), and steering towards it turned the soak's
+    one-push task into a 24-push plan. Whether the turned box still fits among its neighbours
+    is left to `choose_target`, which checks the state it builds."""
+    n = problem.n
+    angles = (math.pi / 2, 0.5, math.pi / 4)   # a quarter turn, then two others
+    turned = np.repeat(state[None, None], len(angles) * n, axis=0).reshape(len(angles), n, n, 3)
+    for k, angle in enumerate(angles):
+        turned[k, np.arange(n), np.arange(n), 2] += angle
+    costs = problem.objective.cost(turned.reshape(-1, n, 3)).reshape(len(angles), n)
+    same = np.abs(costs - cost) <= MIRROR_TOLERANCE * max(abs(cost), 1.0)
+    return np.where(same.all(axis=0), 0.0, np.where(same[0], math.pi / 2, np.inf))
+
+
+def turned_towards(target: np.ndarray, steps: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """`target` (n, 3) with each object turned in place by its `heading_steps` to the heading
+    nearest its heading in `state`: any heading where steps are 0, none where inf."""
+    delta = state[:, 2] - target[:, 2]
+    quarter = np.isfinite(steps) & (steps > 0)
+    step = np.where(quarter, steps, 1.0)
+    turned = target.copy()
+    turned[:, 2] += np.where(steps == 0, delta, np.where(quarter, np.round(delta / step) * step,
+                                                          0.0))
+    return turned
 
 
 def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
