@@ -883,6 +883,43 @@ def test_a_plan_that_detours_for_less_than_its_errors_cost_is_not_executed(monke
     assert report.planned == 1
 
 
+def test_a_first_plan_whose_gain_is_all_in_a_detour_is_made_again(monkeypatch) -> None:
+    """The first plan's whole gain lies behind a detour its pushes' errors would eat: nothing
+    of it is worth executing, but the task is far from converged (the soak's 24-push plan for a
+    one-push task, CI). A second search with the next seed finds a direct plan, executed."""
+    from tsrrt_planner.closed_loop import execution_noise_cost
+    from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
+
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    robot = _SimulatedRobot(scenario, seed=1)
+    start = np.array([robot.observe()[o.id].as_array() for o in scenario.objects])
+    problem = PlanningProblem(scenario, store, AnnulusReachability())
+    now = float(problem.objective.cost(start))
+
+    def fake_plan(costs) -> PlanResult:
+        steps = tuple(PlanStep("platter_1", 3, 0.05) for _ in costs)
+        return PlanResult("tsrrt", 0, steps, np.stack([start] * (len(costs) + 1)),
+                          np.array([now] + [now + c for c in costs]), 1, 0.0, (), "time")
+
+    noise = execution_noise_cost(problem, fake_plan([0.0] * 6 + [-1e-9]), store)
+    detour, direct = [0.0] * 5 + [10 * noise, -0.9 * noise], [-0.9 * noise]
+    seeds: list[int] = []
+
+    def fake_plan_from(scenario_, poses, store_, reachability, settings, *args, **kwargs):
+        seeds.append(settings.seed)
+        return problem, fake_plan(detour if settings.seed == 0 else direct)
+
+    monkeypatch.setattr(closed_loop, "plan_from", fake_plan_from)
+    bound = now - noise   # a task range of `noise`: the gain is 90 % of it
+    settings = TaskSettings(max_pushes=1)
+    assert 0.9 * noise > settings.convergence * max(abs(now), noise)
+    report = run_task(scenario, store, robot, AnnulusReachability(), settings, bound)
+    assert seeds == [0, 1]
+    assert report.pushes == 1 and report.stop_reason == "push budget"
+    assert report.predicted_cost == pytest.approx(now - 0.9 * noise)
+
+
 def test_a_plan_longer_than_the_push_budget_left_goes_to_the_best_state_within_it(
         monkeypatch) -> None:
     """Not half-way into a detour: of a plan down, up and down again, with 4 pushes left the
