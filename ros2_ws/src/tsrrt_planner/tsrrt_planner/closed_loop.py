@@ -857,7 +857,7 @@ def _worth_a_second_search(plan: PlanResult, steps: int, lower_bound_cost: float
     """Whether a task's first plan is worth a second search with another seed: it ended more
     than FIRST_PLAN_RETRY_GAP above the bound, or its gain lies in a detour that
     `steps_worth_executing` leaves out. The soak's one-push task got a 24-push plan through
-    0.37 and back (the remote's push behind two quarter turns of the eraser), whose execution
+    0.37 and back (both boxes turned a quarter turn on the way), whose execution
     noise (0.042) outweighed its gain (0.039): nothing was executed, and the task ended as
     converged 0.04 above a bound of 0."""
     gap = relative_gap(plan.best_cost, lower_bound_cost)

@@ -715,7 +715,7 @@ class _TsrrtSearch(_Search):
             self.add_target(np.asarray(target, float),
                             float(self.problem.objective.cost(target)))
             self.problem = self.problem.with_face_allowance(
-                [target.state for target in self.targets], self.groups)
+                [kept.state for kept in self.targets], self.groups)
 
     def run(self) -> None:
         if self.previous_goal is not None:
