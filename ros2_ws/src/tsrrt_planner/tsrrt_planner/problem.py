@@ -18,7 +18,8 @@ A push is valid when (all checked in `pushes_valid`, vectorised over candidates)
   the executor's Pinocchio-IK grid, tsrrt_executor.reachability.default_map(), so plans only
   use pushes the robot can do);
 * with a face allowance (`with_face_allowance`, the improved planner's), it does not leave more
-  objects of a kind short of reachable faces than the target needs (see there).
+  objects of a kind short of reachable faces than the target needs (see there), nor push one
+  that stays short of a face against the push of the face the arm cannot reach (`_retreats`);
 * the robot has not refused it before moving from (nearly) this state (`refuse`: the closed
   loop marks such pushes, so that a replan does not send the same push again).
 Push geometry (contact point, direction, approach clearance) comes from the executor's
@@ -65,6 +66,9 @@ MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fi
 CONSISTENT_SIDE_STD = 0.003       # m, the executor's consistency target
 CONSISTENT_TURN_STD = math.radians(3.0)
 REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_executable samples
+# Metres an object short of a face may move against the push of its unreachable face (model
+# drift of a sideways push: about 1 mm in 3 cm): further, only that face could undo the move.
+STRANDED_RETREAT = 0.001
 # A refused push stays refused from states this close to the one it was refused in (every object
 # within REFUSED_RADIUS metres, the pushed one also within REFUSED_TURN radians): observations of a
 # still scene differ by well under a millimetre, and a plan that moved anything by more may have
@@ -381,9 +385,12 @@ class PlanningProblem:
         faces_before = self.reachable_faces(objects, before)
         faces_after = self.reachable_faces(objects, final)
         ok = faces_after >= faces_before
+        retreat = self._retreats(objects, before, final,
+                                 (faces_before < self.full_faces[objects])
+                                 & (faces_after <= faces_before))
         losing = np.nonzero(~ok)[0]
         if len(losing) == 0:
-            return ok
+            return ok & ~retreat
         stranded_now = self.reachable_faces(np.arange(self.n), state) < self.full_faces
         objects, group = objects[losing], self.face_group[objects[losing]]
         full = self.full_faces[objects]
@@ -393,7 +400,27 @@ class PlanningProblem:
                            - stranded_now[objects] + was_stranded)
         stranded_after = stranded_before - was_stranded + (faces_after[losing] < full)
         ok[losing] = stranded_after <= np.maximum(self.face_allowance[group], stranded_before)
-        return ok
+        return ok & ~retreat
+
+    def _retreats(self, objects: np.ndarray, before: np.ndarray, final: np.ndarray,
+                  short: np.ndarray) -> np.ndarray:
+        """(k,) True for pushes of objects still `short` of a face that move them more than
+        STRANDED_RETREAT against the push of a face the arm cannot reach: only that face
+        could undo the move."""
+        retreat = np.zeros(len(objects), bool)
+        rows = np.nonzero(short)[0]
+        if len(rows) == 0:
+            return retreat
+        o, pose = objects[rows], before[rows]
+        c, s = np.cos(pose[:, 2:]), np.sin(pose[:, 2:])                     # (m, 1)
+        approach = pose[:, None, :2] + _to_world(c, s, self.approach_offsets[o])   # (m, 4, 2)
+        missing = ~self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(o), 4)
+        missing &= self.available[o, :4]
+        directions = _to_world(c, s, self.rates[o, :4, :2])                  # (m, 4, 2)
+        norms = np.maximum(np.linalg.norm(directions, axis=-1), 1e-12)
+        along = np.einsum("mjd,md->mj", directions, final[rows, :2] - pose[:, :2]) / norms
+        retreat[rows] = (missing & (along < -STRANDED_RETREAT)).any(axis=1)
+        return retreat
 
     def path_reachable(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """(k,) True when the arm reaches every point of the ball paths start-end (k, 2),
