@@ -836,12 +836,10 @@ def test_a_replan_aims_at_the_best_any_plan_of_the_task_promised(monkeypatch) ->
     assert aims[2] == pytest.approx(best + 0.01 * abs(best))
 
 
-def test_a_plan_that_detours_for_less_than_its_errors_cost_is_not_executed(monkeypatch) -> None:
-    """A plan that parks an object (cost up by 10 times its gain) to win less than its pushes'
-    errors cost is not executed: the task stops. The same plan winning more than its errors
-    cost is, and of a plan that first gains and then detours for too little only the first
-    part (however much the first part gains)."""
-    import tsrrt_planner.closed_loop as closed_loop
+def _tset3_with_fake_plans():
+    """tset3 as a simulated robot observes it, a maker of plans of platter_1 pushes with given
+    cost changes from there (`fake_plan`), the start cost and the execution noise of a 6-push
+    plan: for tests of how the task loop treats a plan of a given shape."""
     from tsrrt_planner.closed_loop import execution_noise_cost
     from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
 
@@ -857,12 +855,22 @@ def test_a_plan_that_detours_for_less_than_its_errors_cost_is_not_executed(monke
         return PlanResult("tsrrt", 0, steps, np.stack([start] * (len(costs) + 1)),
                           np.array([now] + [now + c for c in costs]), 1, 0.0, (), "time")
 
+    noise = execution_noise_cost(problem, fake_plan([0.0] * 6 + [-1e-9]), store)
+    return scenario, store, robot, problem, fake_plan, now, noise
+
+
+def test_a_plan_that_detours_for_less_than_its_errors_cost_is_not_executed(monkeypatch) -> None:
+    """A plan that parks an object (cost up by 10 times its gain) to win less than its pushes'
+    errors cost is not executed: the task stops. The same plan winning more than its errors
+    cost is, and of a plan that first gains and then detours for too little only the first
+    part (however much the first part gains)."""
+    scenario, store, robot, problem, fake_plan, now, noise = _tset3_with_fake_plans()
+
     def plan(costs):
         def fake_plan_from(scenario_, poses, *args, **kwargs):
             return problem, fake_plan(costs)
         return fake_plan_from
 
-    noise = execution_noise_cost(problem, fake_plan([0.0] * 6 + [-1e-9]), store)
     assert noise > 0.0
     settings = TaskSettings(max_pushes=1)
     small, large = [0.0] * 5 + [10 * noise, -noise / 2], [0.0] * 5 + [10 * noise, -2 * noise]
@@ -887,22 +895,7 @@ def test_a_first_plan_whose_gain_is_all_in_a_detour_is_made_again(monkeypatch) -
     """The first plan's whole gain lies behind a detour its pushes' errors would eat: nothing
     of it is worth executing, but the task is far from converged (the soak's 24-push plan for a
     one-push task, CI). A second search with the next seed finds a direct plan, executed."""
-    from tsrrt_planner.closed_loop import execution_noise_cost
-    from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
-
-    scenario = load_scenario("tset3")
-    store = learn_all(scenario.objects, seed=0)
-    robot = _SimulatedRobot(scenario, seed=1)
-    start = np.array([robot.observe()[o.id].as_array() for o in scenario.objects])
-    problem = PlanningProblem(scenario, store, AnnulusReachability())
-    now = float(problem.objective.cost(start))
-
-    def fake_plan(costs) -> PlanResult:
-        steps = tuple(PlanStep("platter_1", 3, 0.05) for _ in costs)
-        return PlanResult("tsrrt", 0, steps, np.stack([start] * (len(costs) + 1)),
-                          np.array([now] + [now + c for c in costs]), 1, 0.0, (), "time")
-
-    noise = execution_noise_cost(problem, fake_plan([0.0] * 6 + [-1e-9]), store)
+    scenario, store, robot, problem, fake_plan, now, noise = _tset3_with_fake_plans()
     detour, direct = [0.0] * 5 + [10 * noise, -0.9 * noise], [-0.9 * noise]
     seeds: list[int] = []
 
