@@ -731,8 +731,9 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
                                     good_enough_cost=good_enough, stall=stall, give_up=give_up,
                                     **search)
         steps = _steps_worth_executing(problem, result, store, settings)
-        if first and not cancelled() and _worth_a_second_search(result, steps, lower_bound_cost,
-                                                                settings):
+        if first:
+            report.start_cost = float(result.costs[0])   # the observed start, either plan's
+        if first and not cancelled() and _worth_a_second_search(result, steps, report, settings):
             # The first plan chooses the basin: one that ended far above the bound, or whose
             # gain is all in a detour its execution errors would eat, gets a second search
             # with the next seed, and the one whose executable part predicts less is kept.
@@ -751,8 +752,6 @@ def run_task(scenario: Scenario, store: ModelStore, environment: TaskEnvironment
         report.planning_s += result.elapsed_s
         on_plan(result)
         current = float(result.costs[0])
-        if math.isnan(report.start_cost):
-            report.start_cost = current
         report.final_cost = current
         if not report.costs:
             report.costs.append(current)
@@ -852,7 +851,7 @@ def _steps_worth_executing(problem: PlanningProblem, plan: PlanResult, store: Mo
                                  execution_noise_cost(problem, plan, store))
 
 
-def _worth_a_second_search(plan: PlanResult, steps: int, lower_bound_cost: float,
+def _worth_a_second_search(plan: PlanResult, steps: int, report: TaskReport,
                            settings: TaskSettings) -> bool:
     """Whether a task's first plan is worth a second search with another seed: it ended more
     than FIRST_PLAN_RETRY_GAP above the bound, or its gain lies in a detour that
@@ -860,13 +859,12 @@ def _worth_a_second_search(plan: PlanResult, steps: int, lower_bound_cost: float
     0.37 and back (both boxes turned a quarter turn on the way), whose execution
     noise (0.042) outweighed its gain (0.039): nothing was executed, and the task ended as
     converged 0.04 above a bound of 0."""
-    gap = relative_gap(plan.best_cost, lower_bound_cost)
+    gap = relative_gap(plan.best_cost, report.lower_bound)
     if gap is not None and gap > FIRST_PLAN_RETRY_GAP:
         return True
-    # the first plan's start is the task's: `_negligible`'s scale with that start
     start = float(plan.costs[0])
-    scale = max(abs(start), start - lower_bound_cost if math.isfinite(lower_bound_cost) else 0.0)
-    return steps == 0 and start - float(np.min(plan.costs)) > settings.convergence * scale
+    return steps == 0 and not _negligible(start - float(np.min(plan.costs)), start, report,
+                                          settings)
 
 
 def _replan_allowed(report: TaskReport, why: list[Divergence], settings: TaskSettings) -> bool:
