@@ -32,7 +32,9 @@ from tsrrt_planner.task_space_rrt import (
     interchangeable_groups,
     lost_turn,
     polish_push,
+    replay_from,
     simulate,
+    track_plan,
     turned_towards,
 )
 
@@ -510,6 +512,45 @@ def test_a_finishing_push_is_folded_into_the_earlier_push_it_completes(problem):
     turning = [(platter, 1, 0.03), (plate, 3, 0.02), (platter, 1, 0.002)]
     assert problem.rates[platter, 0, 2] != 0.0
     assert absorb_pushes(problem, turning, first=2) == turning
+
+
+def test_tracking_a_plan_from_its_own_start_repeats_it(problem):
+    steps = [(0, 3, 0.03), (1, 3, 0.02), (0, 1, 0.01)]
+    planned = list(simulate(problem, steps))
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    pushes, states = track_plan(problem, problem.start, steps, planned, weights)
+    assert [(o, p) for o, p, _ in pushes] == [(o, p) for o, p, _ in steps]
+    np.testing.assert_allclose([length for _, _, length in pushes],
+                               [length for _, _, length in steps], atol=1e-12)
+    np.testing.assert_allclose(states, planned, atol=1e-12)
+
+
+def test_a_plan_tracked_from_a_millimetre_off_still_ends_at_its_poses(problem):
+    """A push that ends 0.2 mm short of where it turns invalid (the table edge, a neighbour),
+    replayed as it was from a start 1 mm further along, is invalid; re-aimed at the pose it
+    gave its object, it is shortened and ends there."""
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+
+    def valid(state: np.ndarray, length: float) -> bool:
+        return bool(problem.pushes_valid(state, np.array([plate]), np.array([primitive]),
+                                         np.array([length]))[0])
+
+    # a plate's push that turns invalid before its longest length
+    plate, primitive = next(
+        (o, p) for o in np.nonzero(problem.objects.is_disc)[0] for p in (1, 2, 3, 4)
+        if problem.pushes_valid(problem.start, np.array([o, o]), np.array([p, p]), np.array(
+            [problem.min_length, problem.max_lengths[o]])).tolist() == [True, False])
+    low, high = problem.min_length, problem.max_lengths[plate]
+    for _ in range(40):
+        low, high = ((low + high) / 2, high) if valid(problem.start, (low + high) / 2) else (
+            low, (low + high) / 2)
+    steps = [(plate, primitive, low - 0.0002)]
+    planned = list(simulate(problem, steps))
+    off = problem.apply(problem.start, plate, primitive, 0.001)
+    assert replay_from(problem, off, steps) is None
+    pushes, states = track_plan(problem, off, steps, planned, weights)
+    assert pushes[0][2] == pytest.approx(low - 0.0012, abs=1e-9)
+    np.testing.assert_allclose(states[-1], planned[-1], atol=1e-9)
 
 
 @pytest.mark.parametrize("mode", MODES)
