@@ -18,12 +18,14 @@ from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
     MODES,
+    PAIR_COST_TOLERANCE,
     TASK_SPACE_RRT,
     GiveUpRule,
     PlannerConfig,
     PlanStep,
     SoftDeadline,
     StallRule,
+    _TsrrtSearch,
     absorb_pushes,
     assignment,
     can_move,
@@ -247,6 +249,30 @@ def test_lower_bound_is_feasible_and_below_start(problem, bound):
     assert bound.cost <= problem.objective.cost(problem.start)
     state, cost, feasible = local_minimum(problem, problem.start)
     assert feasible and cost <= problem.objective.cost(problem.start) + 1e-12
+
+
+def test_a_local_minimum_keeps_held_objects_where_they_are(problem):
+    held = np.zeros(problem.n, bool)
+    held[1] = True
+    state, cost, feasible = local_minimum(problem, problem.start, held=held)
+    assert feasible and cost <= problem.objective.cost(problem.start) + 1e-12
+    np.testing.assert_array_equal(state[1], problem.start[1])
+    assert np.abs(state[~held] - problem.start[~held]).max() > 1e-3
+
+
+def test_directgd_holds_an_object_the_arm_cannot_get_behind(tset6):
+    """tset6's platter_2 starts where the arm reaches three of its four faces: a target that
+    moves it to where only the fourth could push it is out of the search's reach."""
+    stranded = tset6.reachable_faces(np.arange(tset6.n), tset6.start) < tset6.full_faces
+    assert stranded.tolist() == [False] * 5 + [True]
+    weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
+    search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
+                          target=None)
+    state, cost = search.directgd(0)
+    np.testing.assert_array_equal(state[stranded], tset6.start[stranded])
+    assert cost < tset6.objective.cost(tset6.start)
+    free, _, _ = local_minimum(tset6, tset6.start, PlannerConfig().gd_iterations)
+    assert np.abs(free[stranded] - tset6.start[stranded]).max() > 0.01
 
 
 @pytest.mark.parametrize("answers_before_cancel", [0, 2])
@@ -562,7 +588,8 @@ def test_a_warm_started_plan_is_no_worse_than_its_warm_start(problem, bound, mod
     warm = TASK_SPACE_RRT(problem, mode, seed=4, time_budget_s=None,
                           max_nodes=len(previous.steps) + 5, warm_start=previous.steps)
     assert cold.best_cost > previous.best_cost
-    assert warm.best_cost <= previous.best_cost + 1e-12
+    # shortening the plan may give up a little of its cost for fewer pushes
+    assert warm.best_cost <= previous.best_cost + PAIR_COST_TOLERANCE * abs(previous.best_cost)
     replay(problem, warm)
 
 

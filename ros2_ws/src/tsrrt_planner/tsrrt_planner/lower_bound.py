@@ -48,9 +48,10 @@ def relative_gap(cost: float, bound: float | None) -> float | None:
     return (cost - bound) / abs(bound)
 
 
-def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: int = 60
-                  ) -> tuple[np.ndarray, float, bool]:
-    """Constrained local minimum near `state` (n, 3).
+def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: int = 60,
+                  held: np.ndarray | None = None) -> tuple[np.ndarray, float, bool]:
+    """Constrained local minimum near `state` (n, 3), the objects `held` (n,) bool, if given,
+    kept where they are.
 
     Returns:
         (state (n, 3), cost, feasible): feasible is False when SLSQP ended outside the
@@ -58,20 +59,26 @@ def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: i
     """
     shape = state.shape
     objective, checker = problem.objective, problem.checker
+    free = np.ones(state.size, bool) if held is None else np.repeat(~held, shape[1])
+
+    def full(x: np.ndarray) -> np.ndarray:
+        whole = state.ravel().copy()
+        whole[free] = x
+        return whole.reshape(shape)
 
     def cost(x: np.ndarray) -> float:
-        return objective.cost(x.reshape(shape))
+        return objective.cost(full(x))
 
     def gradient(x: np.ndarray) -> np.ndarray:
-        return objective.gradient(x.reshape(shape)).ravel()
+        return objective.gradient(full(x)).ravel()[free]
 
-    constraints = {"type": "ineq", "fun": lambda x: checker.constraint_values(x.reshape(shape)),
-                   "jac": lambda x: checker.constraint_jacobian(x.reshape(shape))}
+    constraints = {"type": "ineq", "fun": lambda x: checker.constraint_values(full(x)),
+                   "jac": lambda x: checker.constraint_jacobian(full(x))[:, free]}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = minimize(cost, state.ravel(), jac=gradient, constraints=[constraints],
+        result = minimize(cost, state.ravel()[free], jac=gradient, constraints=[constraints],
                           method="SLSQP", options={"maxiter": max_iterations, "ftol": 1e-10})
-    found = result.x.reshape(shape)
+    found = full(result.x)
     feasible = bool(checker.constraint_values(found).min() >= -FEASIBILITY_TOLERANCE)
     return found, float(objective.cost(found)), feasible
 
