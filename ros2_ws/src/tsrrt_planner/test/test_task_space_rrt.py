@@ -556,16 +556,16 @@ def test_a_plan_tracked_from_a_millimetre_off_still_ends_at_its_poses(problem):
     replayed as it was from a start 1 mm further along, is invalid; re-aimed at the pose it
     gave its object, it is shortened and ends there."""
     weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
-
-    def valid(state: np.ndarray, length: float) -> bool:
-        return bool(problem.pushes_valid(state, np.array([plate]), np.array([primitive]),
-                                         np.array([length]))[0])
-
     # a plate's push that turns invalid before its longest length
     plate, primitive = next(
         (o, p) for o in np.nonzero(problem.objects.is_disc)[0] for p in (1, 2, 3, 4)
         if problem.pushes_valid(problem.start, np.array([o, o]), np.array([p, p]), np.array(
             [problem.min_length, problem.max_lengths[o]])).tolist() == [True, False])
+
+    def valid(state: np.ndarray, length: float) -> bool:
+        return bool(problem.pushes_valid(state, np.array([plate]), np.array([primitive]),
+                                         np.array([length]))[0])
+
     low, high = problem.min_length, problem.max_lengths[plate]
     for _ in range(40):
         low, high = ((low + high) / 2, high) if valid(problem.start, (low + high) / 2) else (
