@@ -269,9 +269,8 @@ class PlanningProblem:
         variant.face_group = np.arange(self.n)
         for group in groups:
             variant.face_group[group] = group[0]
-        everyone = np.arange(self.n)
-        stranded = np.array([self.reachable_faces(everyone, np.asarray(target, float))
-                             < self.full_faces for target in targets])   # (targets, n)
+        stranded = np.array([self.short_of_faces(np.asarray(target, float))
+                             for target in targets])   # (targets, n)
         per_group = np.array([np.bincount(variant.face_group, weights=row, minlength=self.n)
                               for row in stranded])
         variant.face_allowance = per_group.min(axis=0)
@@ -373,10 +372,20 @@ class PlanningProblem:
         if self.reach_cells is not None:
             return faces_reached(np.asarray(objects, np.int64), np.asarray(poses, float),
                                  self.approach_offsets, self.available[:, :4], *self.reach_cells)
+        return (self._approaches_reached(objects, poses)
+                & self.available[objects, :4]).sum(axis=1)
+
+    def short_of_faces(self, state: np.ndarray) -> np.ndarray:
+        """(n,) True for the objects of `state` (n, 3) that are short of a reachable face
+        (stranded, in `with_face_allowance`'s words)."""
+        return self.reachable_faces(np.arange(self.n), state) < self.full_faces
+
+    def _approaches_reached(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """(k, 4) whether the arm reaches the approach point of each translation primitive
+        (1-4) of `objects` at `poses` (k, 3), whether the object has that primitive or not."""
         approach = poses[:, None, :2] + _to_world(                     # (k, 4, 2)
             np.cos(poses[:, 2:]), np.sin(poses[:, 2:]), self.approach_offsets[objects])
-        reach = self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(objects), 4)
-        return (reach & self.available[objects, :4]).sum(axis=1)
+        return self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(objects), 4)
 
     def keeps_faces(self, state: np.ndarray, objects: np.ndarray, before: np.ndarray,
                     final: np.ndarray) -> np.ndarray:
@@ -391,7 +400,7 @@ class PlanningProblem:
         losing = np.nonzero(~ok)[0]
         if len(losing) == 0:
             return ok & ~retreat
-        stranded_now = self.reachable_faces(np.arange(self.n), state) < self.full_faces
+        stranded_now = self.short_of_faces(state)
         objects, group = objects[losing], self.face_group[objects[losing]]
         full = self.full_faces[objects]
         was_stranded = faces_before[losing] < full
@@ -412,11 +421,9 @@ class PlanningProblem:
         if len(rows) == 0:
             return retreat
         o, pose = objects[rows], before[rows]
-        c, s = np.cos(pose[:, 2:]), np.sin(pose[:, 2:])                     # (m, 1)
-        approach = pose[:, None, :2] + _to_world(c, s, self.approach_offsets[o])   # (m, 4, 2)
-        missing = ~self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(o), 4)
-        missing &= self.available[o, :4]
-        directions = _to_world(c, s, self.rates[o, :4, :2])                  # (m, 4, 2)
+        missing = ~self._approaches_reached(o, pose) & self.available[o, :4]   # (m, 4)
+        directions = _to_world(np.cos(pose[:, 2:]), np.sin(pose[:, 2:]),
+                               self.rates[o, :4, :2])                       # (m, 4, 2)
         norms = np.maximum(np.linalg.norm(directions, axis=-1), 1e-12)
         along = np.einsum("mjd,md->mj", directions, final[rows, :2] - pose[:, :2]) / norms
         retreat[rows] = (missing & (along < -STRANDED_RETREAT)).any(axis=1)

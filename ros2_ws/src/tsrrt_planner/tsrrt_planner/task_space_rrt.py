@@ -832,8 +832,7 @@ class _TsrrtSearch(_Search):
         platters centred for those targets."""
         self.check_budget()
         state = self.tree.states[node]
-        held = self.problem.reachable_faces(np.arange(self.problem.n), state) < (
-            self.problem.full_faces)
+        held = self.problem.short_of_faces(state)
         if held.any():
             found, cost, feasible = local_minimum(self.problem, state,
                                                   self.config.gd_iterations, held)
