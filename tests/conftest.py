@@ -207,6 +207,27 @@ class Probe(Node):
         callback = feedback.append if feedback is not None else None
         return self.wait_for(action_client.send_goal_async(goal, feedback_callback=callback))
 
+    def handshake(self, action_client, goal, timeout: float = 60.0,
+                  resend_after: float = 2.0) -> None:
+        """Send `goal`, one the server refuses or fails at once, until it is answered in full.
+        wait_for_server only sees the server in the graph: rmw_fastrtps drops the goal
+        response of a server that has not yet matched this client's reader (a fresh-clone CI
+        run: RunTask to a restarted planner, no answer in 30 s), and a real goal cannot simply
+        be sent again, since the lost one may be running."""
+        assert action_client.wait_for_server(timeout_sec=timeout), "action server not available"
+        deadline = time.monotonic() + timeout
+        sent = []
+        while time.monotonic() < deadline:
+            sent.append(action_client.send_goal_async(goal))
+            if not self.spin_until(lambda: any(f.done() for f in sent), resend_after):
+                continue
+            handle = next(f for f in sent if f.done()).result()
+            if not handle.accepted or self.spin_until(handle.get_result_async().done,
+                                                      resend_after):
+                return
+        raise AssertionError(f"{action_client._action_name}: {len(sent)} goals, no answer "
+                             f"within {timeout} s")
+
     def execute(self, action_client, goal, feedback: list | None = None,
                 timeout: float = 60.0):
         """Send a goal that must be accepted and wait for its result (the wrapper with status)."""
