@@ -244,7 +244,10 @@ class TaskGraph:
     # ------------------------------------------------------------------ tasks
     def send_task(self, goal: RunTask.Goal | None = None, feedback: list | None = None):
         """Send a RunTask goal; returns its (accepted) handle."""
-        handle = self.probe.send_goal(self.run_client, goal or RunTask.Goal(), feedback)
+        try:
+            handle = self.probe.send_goal(self.run_client, goal or RunTask.Goal(), feedback)
+        except AssertionError as error:   # no answer: what the nodes logged says why
+            raise AssertionError(f"{error}\n{self.logs()}") from None
         assert handle.accepted, "RunTask rejected"
         return handle
 
