@@ -186,6 +186,12 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     return (_trace(parents, actions, best) if best else []), False
 
 
+def compile_kernels(problem: PlanningProblem) -> None:
+    """Compile `_expand` (or load it from numba's cache) before a search's clock starts."""
+    goal = problem.start[0] + np.array([0.01, 0.0, 0.0])
+    object_path(problem, problem.start, 0, goal, 1.0, lambda: None, max_expansions=1)
+
+
 def _key(pose: np.ndarray, weight: float, period: float) -> tuple[int, int, int]:
     """Grid cell (KEY_RESOLUTION) of a pose (3,), heading reduced modulo the symmetry (as
     _expand keys the poses it makes)."""

@@ -43,6 +43,7 @@ from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.rearrange import (
     blockers_of,
     clear_of_way,
+    compile_kernels,
     corridor_blocks,
     object_error,
     object_path,
@@ -1359,6 +1360,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     if mode == "greedy":
         search = _GreedySearch(*arguments)
     elif mode == "tsrrt":
+        compile_kernels(problem)   # before the search's clock starts
         search = _TsrrtSearch(*arguments, target=target,
                               previous_goal=None if previous_goal is None
                               else np.asarray(previous_goal, dtype=float))
