@@ -255,15 +255,15 @@ class PlanningProblem:
     def _compile_kernels(self) -> None:
         """Compile the push checks' kernels (or load them from numba's cache) now, as the
         collision checker does its own: on a fresh install they took 0.5 s of a first plan's
-        first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s more)."""
+        first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s more). Each stage is
+        called directly: `pushes_valid` skips the later ones once an earlier one has refused
+        every push."""
         one = np.zeros(1, np.int64)
         pose = self.start[:1]
         _, _, start, end = self._geometry(pose, one, one + 1, np.full(1, self.min_length))
         self.checker.swept_valid(self.start, one, pose, np.zeros((1, 3)), one + 1)
         self.path_reachable(start, end)
         self.reachable_faces(one, pose)
-        self.pushes_valid(self.start, self.action_objects, self.action_primitives,
-                          np.full(len(self.action_objects), self.min_length))
 
     def with_face_allowance(self, targets: Sequence[np.ndarray],
                             groups: Sequence[np.ndarray]) -> PlanningProblem:
