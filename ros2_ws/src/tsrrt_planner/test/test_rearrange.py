@@ -16,10 +16,12 @@ from tsrrt_planner.rearrange import (
     STEER_FRACTIONS,
     _expand,
     _key,
+    approach_blockers,
     blockers_of,
     clear_of_way,
     corridor_blocks,
     footprints_clear,
+    frees_a_push,
     object_error,
     object_path,
     parking_poses,
@@ -214,6 +216,25 @@ def test_blockers_and_parking():
         gap = problem.checker.shapes.pair_signed_distance(
             np.array([0]), parked[[0]], np.array([1]), parked[[1]])
         assert gap[0] >= problem.checker.margin
+
+
+def test_an_object_where_the_ball_must_be_is_named_with_the_push_it_blocks():
+    """plate_1 must go 15 cm towards -y, which only a push from its +y side does; plate_2
+    stands there, 1 cm off, so that push is invalid until plate_2 is moved out of the way."""
+    scenario = load_scenario("tset3")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    state = np.array([[0.45, 0.0, 0.0], [0.45, 0.11, 0.0], [0.57, 0.15, np.pi / 2]])
+    assert problem.checker.constraint_values(state).min() >= 0.0
+    target = state.copy()
+    target[0, 1] = -0.15
+    blockers, freed = approach_blockers(problem, state, target, 0, 0.0)
+    assert blockers == [1]
+    assert [push[:2] for push in freed] == [(0, 4)]   # primitive 4 pushes towards -y
+    assert not frees_a_push(problem, state, 1, state[1], freed)
+    assert frees_a_push(problem, state, 1, np.array([0.33, 0.2, 0.0]), freed)
+    away = state.copy()
+    away[1] = (0.33, 0.2, 0.0)
+    assert approach_blockers(problem, away, target, 0, 0.0) == ([], [])
 
 
 def test_parking_falls_back_on_other_pending_targets(problem):

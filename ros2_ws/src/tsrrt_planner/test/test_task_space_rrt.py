@@ -262,19 +262,43 @@ def test_a_local_minimum_keeps_held_objects_where_they_are(problem):
     assert np.abs(state[~held] - problem.start[~held]).max() > 1e-3
 
 
-def test_directgd_holds_an_object_the_arm_cannot_get_behind(tset6):
-    """tset6's platter_2 starts where the arm reaches three of its four faces: a target that
-    moves it to where only the fourth could push it is out of the search's reach."""
-    stranded = tset6.reachable_faces(np.arange(tset6.n), tset6.start) < tset6.full_faces
-    assert stranded.tolist() == [False] * 5 + [True]
+def test_a_local_minimum_keeps_pinned_objects_on_their_line(problem):
+    pinned = np.zeros((problem.n, 2))
+    pinned[1] = (math.cos(0.3), math.sin(0.3))
+    state, cost, feasible = local_minimum(problem, problem.start, pinned=pinned)
+    assert feasible and cost <= problem.objective.cost(problem.start) + 1e-12
+    moved = state[1, :2] - problem.start[1, :2]
+    assert abs(moved @ pinned[1]) < 1e-6
+    assert np.linalg.norm(moved) > 1e-3
+
+
+def test_stranded_pushes_name_the_unreachable_face(tset6):
+    """tset6's platter_2 starts where the arm reaches three of its four faces: the direction
+    returned is that of the fourth face's push."""
+    count, direction = tset6.stranded_pushes(tset6.start)
+    assert count.tolist() == [0] * 5 + [1]
+    np.testing.assert_array_equal(direction[:5], 0.0)
+    assert np.linalg.norm(direction[5]) == pytest.approx(1.0)
+    reached = tset6._approaches_reached(np.array([5]), tset6.start[[5]])[0]
+    missing = int(np.nonzero(~reached & tset6.available[5, :4])[0][0])
+    step = tset6.apply(tset6.start, 5, missing + 1, 0.02)[5, :2] - tset6.start[5, :2]
+    assert step @ direction[5] == pytest.approx(np.linalg.norm(step), rel=1e-3)
+
+
+def test_directgd_keeps_an_object_the_arm_cannot_get_behind_on_its_line(tset6):
+    """A target that moves platter_2 along the push the arm cannot make is out of the search's
+    reach; across it the platter is free, which lets the descent reach targets as good as the
+    free one's."""
+    count, direction = tset6.stranded_pushes(tset6.start)
     weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
     search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
                           target=None)
     state, cost = search.directgd(0)
-    np.testing.assert_array_equal(state[stranded], tset6.start[stranded])
+    moved = state[5, :2] - tset6.start[5, :2]
+    assert abs(moved @ direction[5]) < 1e-6
     assert cost < tset6.objective.cost(tset6.start)
     free, _, _ = local_minimum(tset6, tset6.start, PlannerConfig().gd_iterations)
-    assert np.abs(free[stranded] - tset6.start[stranded]).max() > 0.01
+    assert abs((free[5, :2] - tset6.start[5, :2]) @ direction[5]) > 0.01
 
 
 @pytest.mark.parametrize("answers_before_cancel", [0, 2])

@@ -49,9 +49,11 @@ def relative_gap(cost: float, bound: float | None) -> float | None:
 
 
 def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: int = 60,
-                  held: np.ndarray | None = None) -> tuple[np.ndarray, float, bool]:
+                  held: np.ndarray | None = None, pinned: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, float, bool]:
     """Constrained local minimum near `state` (n, 3), the objects `held` (n,) bool, if given,
-    kept where they are.
+    kept where they are, and those with a nonzero row of `pinned` (n, 2) kept where they are
+    along that direction (free across it and in heading).
 
     Returns:
         (state (n, 3), cost, feasible): feasible is False when SLSQP ended outside the
@@ -72,11 +74,20 @@ def local_minimum(problem: PlanningProblem, state: np.ndarray, max_iterations: i
     def gradient(x: np.ndarray) -> np.ndarray:
         return objective.gradient(full(x)).ravel()[free]
 
-    constraints = {"type": "ineq", "fun": lambda x: checker.constraint_values(full(x)),
-                   "jac": lambda x: checker.constraint_jacobian(full(x))[:, free]}
+    constraints = [{"type": "ineq", "fun": lambda x: checker.constraint_values(full(x)),
+                    "jac": lambda x: checker.constraint_jacobian(full(x))[:, free]}]
+    rows = [] if pinned is None else np.nonzero(np.abs(pinned).sum(axis=1) > 0)[0]
+    if len(rows):
+        along = np.zeros((len(rows), state.size))   # d . (position - start) = 0 per row
+        for k, i in enumerate(rows):
+            along[k, 3 * i:3 * i + 2] = pinned[i]
+        along = along[:, free]
+        start = along @ state.ravel()[free]
+        constraints.append({"type": "eq", "fun": lambda x: along @ x - start,
+                            "jac": lambda x: along})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = minimize(cost, state.ravel()[free], jac=gradient, constraints=[constraints],
+        result = minimize(cost, state.ravel()[free], jac=gradient, constraints=constraints,
                           method="SLSQP", options={"maxiter": max_iterations, "ftol": 1e-10})
     found = full(result.x)
     feasible = bool(checker.constraint_values(found).min() >= -FEASIBILITY_TOLERANCE)

@@ -394,6 +394,22 @@ class PlanningProblem:
         (stranded, in `with_face_allowance`'s words)."""
         return self.reachable_faces(np.arange(self.n), state) < self.full_faces
 
+    def stranded_pushes(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For the objects of `state` (n, 3) short of a reachable face: (n,) how many
+        translation primitives they have whose approach point the arm cannot reach, and
+        (n, 2) the world direction of the push of one of them (zeros elsewhere). Nothing can
+        push such an object along that direction, and the face rule keeps it from being pushed
+        against it."""
+        everyone = np.arange(self.n)
+        missing = ~self._approaches_reached(everyone, state) & self.available[:, :4]
+        missing &= self.short_of_faces(state)[:, None]
+        directions = _to_world(np.cos(state[:, 2:]), np.sin(state[:, 2:]),
+                               self.rates[:, :4, :2])                        # (n, 4, 2)
+        first = np.argmax(missing, axis=1)
+        direction = directions[everyone, first] * missing.any(axis=1)[:, None]
+        norms = np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+        return missing.sum(axis=1), direction / norms
+
     def _approaches_reached(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k, 4) whether the arm reaches the approach point of each translation primitive
         (1-4) of `objects` at `poses` (k, 3), whether the object has that primitive or not."""

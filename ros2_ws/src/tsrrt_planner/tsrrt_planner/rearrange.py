@@ -51,6 +51,7 @@ BALL_ROOM = 0.04  # metres around an object the pusher needs (ball, approach, ma
 # clearance test (parking poses, sweeps, free targets) sent tset6 from 3.5 % to 23.8 % (median of
 # 8 seeds)
 CLEARANCE_SLACK = 1e-4
+OFF_THE_TABLE = (1e3, 1e3)  # where approach_blockers puts an object to see a push without it
 
 
 def object_error(problem: PlanningProblem, index: int, poses: np.ndarray, goal: np.ndarray,
@@ -276,6 +277,47 @@ def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
              + problem.checker.shapes.bounding_radius[index] + BALL_ROOM)
     near = distance < reach
     return [int(j) for j in others[near][np.argsort(distance[near], kind="stable")]]
+
+
+def approach_blockers(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                      index: int, weight: float) -> tuple[list[int], list[Push]]:
+    """When no push of nominal length that brings object `index` closer to its target is
+    valid: the objects without which one would be (standing where the ball must be), and
+    those pushes. tset6's platter_2, 7 cm off its target in the arm's blind spot, could be
+    pushed back only from its far end, where the plate placed in the corner beside it stood."""
+    length = min(problem.nominal_length, float(problem.max_lengths[index]))
+    before = float(object_error(problem, index, state[index][None], target[index], weight)[0])
+    primitives = np.array([
+        primitive for primitive in problem.action_primitives[problem.action_objects == index]
+        if float(object_error(problem, index,
+                              problem.apply(state, index, int(primitive), length)[index][None],
+                              target[index], weight)[0]) < before], int)
+    objects, lengths = np.full(len(primitives), index), np.full(len(primitives), length)
+    if len(primitives) == 0 or problem.pushes_valid(state, objects, primitives, lengths).any():
+        return [], []
+    blockers, freed = [], np.zeros(len(primitives), bool)
+    for j in range(problem.n):
+        if j == index:
+            continue
+        without = state.copy()
+        without[j, :2] = OFF_THE_TABLE
+        now_valid = problem.pushes_valid(without, objects, primitives, lengths)
+        if now_valid.any():
+            blockers.append(j)
+            freed |= now_valid
+    return blockers, [(index, int(primitive), length) for primitive in primitives[freed]]
+
+
+def frees_a_push(problem: PlanningProblem, state: np.ndarray, index: int, pose: np.ndarray,
+                 pushes: list[Push]) -> bool:
+    """Whether one of `pushes` is valid with object `index` moved to `pose` (3,)."""
+    if not pushes:
+        return True
+    moved = state.copy()
+    moved[index] = pose
+    return bool(problem.pushes_valid(moved, np.array([push[0] for push in pushes]),
+                                     np.array([push[1] for push in pushes]),
+                                     np.array([push[2] for push in pushes])).any())
 
 
 def straight_sweep(state: np.ndarray, target: np.ndarray, index: int,

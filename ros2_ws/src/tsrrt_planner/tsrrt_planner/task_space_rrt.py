@@ -27,6 +27,7 @@ budget or when cancelled, report progress, and return the best state found with 
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
 import threading
 import time
@@ -41,10 +42,12 @@ from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.rearrange import (
+    approach_blockers,
     blockers_of,
     clear_of_way,
     compile_kernels,
     corridor_blocks,
+    frees_a_push,
     object_error,
     object_path,
     parking_poses,
@@ -825,18 +828,22 @@ class _TsrrtSearch(_Search):
 
     def directgd(self, node: int) -> tuple[np.ndarray, float] | None:
         """DIRECTGD from a node with every object that is short of a face the arm reaches there
-        held where it is (if that descent ends infeasible, without holding). Under the face
-        rule such an object cannot be pushed back from the side the arm cannot get behind, so a
-        minimum that moves it freely is a target the search cannot reach: tset6's platter_2
-        starts in the blind spot, every optimum the free descent found had it 2-8 cm further
-        out, and 4 of 10 seeds sat 23-25 % above the bound for 1-2 s, plate_1 walled in behind
-        platters centred for those targets."""
+        kept in place along that face's push, or held where it is when it is short of more
+        than one (if that descent ends infeasible, free). No push moves such an object along
+        that line, and the face rule keeps it from being pushed back against it, so a minimum
+        that moves it there is a target the search cannot reach: tset6's platter_2 starts in
+        the blind spot, every optimum the free descent found had it 2-8 cm further out, and 4
+        of 10 seeds sat 23-25 % above the bound for 1-2 s, plate_1 walled in behind platters
+        centred for those targets. Held entirely, it gave targets 2.4 % above the bound where
+        keeping it along the line alone reaches the bound's cost (docs/planner.md, *Stranded
+        objects kept along one line*)."""
         self.check_budget()
         state = self.tree.states[node]
-        held = self.problem.short_of_faces(state)
-        if held.any():
-            found, cost, feasible = local_minimum(self.problem, state,
-                                                  self.config.gd_iterations, held)
+        stranded, direction = self.problem.stranded_pushes(state)
+        if stranded.any():
+            found, cost, feasible = local_minimum(
+                self.problem, state, self.config.gd_iterations, held=stranded > 1,
+                pinned=direction * (stranded == 1)[:, None])
             if feasible:
                 return found, cost
         return super().directgd(node)
@@ -953,19 +960,28 @@ class _TsrrtSearch(_Search):
         times per REARRANGE (`parked` counts them), so parking cannot go round in circles."""
         problem = self.problem
         state = self.tree.states[node]
-        candidates = [(blocked, j) for blocked in order[:3]
-                      for j in blockers_of(problem, state, target, blocked)[:2]
-                      if parked.get(j, 0) < self.max_parkings]
-        candidates.sort(key=lambda pair: pair[1] not in pending)
+        candidates = []   # (blocked, object to park, pushes of `blocked` its parking must free)
+        for blocked in order[:3]:
+            # first those that stand where the ball must be for any push towards the target
+            at_approach, freed = approach_blockers(problem, state, target, blocked,
+                                                   self.weights[blocked])
+            candidates += [(blocked, j, freed) for j in at_approach[:2]]
+            candidates += [(blocked, j, []) for j in blockers_of(problem, state, target,
+                                                                 blocked)[:2]]
+        candidates = [candidate for candidate in candidates
+                      if parked.get(candidate[1], 0) < self.max_parkings]
+        candidates.sort(key=lambda candidate: candidate[1] not in pending)
         tried: set[int] = set()
         searches = 0
-        for blocked, j in candidates:
+        for blocked, j, freed in candidates:
             if j in tried or searches >= PARKING_SEARCHES_PER_PARKING * self.max_parkings:
                 continue
             tried.add(j)
             poses = parking_poses(problem, state, target, j, pending, self.rng, blocked)
             far = np.linalg.norm(poses[:, :2] - state[j, :2], axis=1) > 2 * PARKING_TOLERANCE
-            for pose in poses[far][:3]:
+            freeing = (pose for pose in poses[far]
+                       if frees_a_push(problem, state, j, pose, freed))
+            for pose in itertools.islice(freeing, 3):
                 searches += 1
                 path, reached = object_path(problem, state, j, pose, self.weights[j],
                                             self.check_budget, PARKING_TOLERANCE)
@@ -973,7 +989,8 @@ class _TsrrtSearch(_Search):
                     # short of the parking pose may still be out of the way
                     end = simulate_from(problem, state, path)[j]
                     reached = bool(clear_of_way(problem, state, target, j, end[None],
-                                                blocked)[0])
+                                                blocked)[0]) and frees_a_push(
+                        problem, state, j, end, freed)
                 if reached and path:
                     if j not in pending:
                         pending.append(j)
