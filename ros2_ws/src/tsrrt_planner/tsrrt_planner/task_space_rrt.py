@@ -956,8 +956,10 @@ class _TsrrtSearch(_Search):
              parked: dict[int, int]) -> int | None:
         """Move an object in the way of one of the first pending objects in `order` out of
         that one's way (parking_poses; adding it to `pending`); None when none could move.
-        Pending objects are parked before placed ones, and none more than `max_parkings`
-        times per REARRANGE (`parked` counts them), so parking cannot go round in circles."""
+        Objects standing where the ball must be for that one's pushes (approach_blockers) go
+        first, to a pose that frees one of those pushes; pending objects are parked before
+        placed ones, and none more than `max_parkings` times per REARRANGE (`parked` counts
+        them), so parking cannot go round in circles."""
         problem = self.problem
         state = self.tree.states[node]
         candidates = []   # (blocked, object to park, pushes of `blocked` its parking must free)
