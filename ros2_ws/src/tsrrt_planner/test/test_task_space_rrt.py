@@ -301,6 +301,18 @@ def test_directgd_keeps_an_object_the_arm_cannot_get_behind_on_its_line(tset6):
     assert abs((free[5, :2] - tset6.start[5, :2]) @ direction[5]) > 0.01
 
 
+def test_directgd_runs_twice_as_often_while_the_best_node_is_far_from_every_target(tset6):
+    weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
+    search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
+                          target=None)
+    state, cost = search.directgd(0)
+    search.add_target(state, cost)
+    assert search.best_cost > cost + 0.05 * abs(cost)    # the start, 78 % above the bound
+    assert search.gd_period() == PlannerConfig().gd_period // 2
+    search.best_cost = cost
+    assert search.gd_period() == PlannerConfig().gd_period
+
+
 @pytest.mark.parametrize("answers_before_cancel", [0, 2])
 def test_a_cancelled_lower_bound_raises_instead_of_returning_a_partial_one(
         problem, answers_before_cancel):

@@ -58,6 +58,7 @@ MODES = ("paper", "paper-nogd", "tsrrt", "greedy")
 Push = tuple[int, int, float]  # (object index, primitive, push length)
 MIN_STEER_GAIN = 0.2  # share of an object's squared error a steering push must remove
 NEAR_OPTIMAL = 0.005  # targets within this share of the best target's cost count as optimal
+FAR_FROM_TARGETS = 0.05  # share of the best target's cost above it where DIRECTGD runs more often
 REARRANGE_TOLERANCE = 0.004  # metres (weighted rho) at which REARRANGE counts an object placed
 STUCK_TURN = 0.001  # metres of arc at a box's ends below which a turn it can't make is no loss
 SEARCH_EXPANSIONS = 48  # REARRANGE: A* expansions per object and attempt
@@ -793,7 +794,7 @@ class _TsrrtSearch(_Search):
         rounds = 0
         while True:
             rounds += 1
-            if not self.targets or rounds % self.config.gd_period == 0:
+            if not self.targets or rounds % self.gd_period() == 0:
                 found = self.directgd(int(self.rng.integers(self.tree.size)))  # varied nodes
                 if found is not None:
                     self.add_target(found[0], found[1])
@@ -807,6 +808,18 @@ class _TsrrtSearch(_Search):
                 self.extend_towards_a_target()
             if self.best not in self.polished:
                 self.polished.add(self.polish(self.best))
+
+    def gd_period(self) -> int:
+        """Rounds between DIRECTGD calls: half of gd_period while the best node is more than
+        FAR_FROM_TARGETS above the best target. On tset6 such a node has objects walled in,
+        and a descent from another node is a target with another arrangement to get out by;
+        nearer, the descents' time is better spent on the search (40 seeds: 3.05 % at 1 s with
+        gd_period always, 2.45 % with this, the median time to 1 % 2.42 s and 2.93 s;
+        gd_period / 2 always: 1 % in 3.11 s over 20 seeds)."""
+        best_target = min(target.cost for target in self.targets)
+        if self.best_cost > best_target + FAR_FROM_TARGETS * abs(best_target):
+            return max(1, self.config.gd_period // 2)
+        return self.config.gd_period
 
     def extend_towards_a_target(self) -> None:
         """One round with targets: from the best node or a random one, REARRANGE towards the
