@@ -301,14 +301,14 @@ def test_directgd_keeps_an_object_the_arm_cannot_get_behind_on_its_line(tset6):
     assert abs((free[5, :2] - tset6.start[5, :2]) @ direction[5]) > 0.01
 
 
-def test_directgd_runs_twice_as_often_while_the_best_node_is_far_from_every_target(tset6):
+def test_directgd_runs_more_often_while_the_best_node_is_far_from_every_target(tset6):
     weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
     search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
                           target=None)
     state, cost = search.directgd(0)
     search.add_target(state, cost)
     assert search.best_cost > cost + 0.05 * abs(cost)    # the start, 78 % above the bound
-    assert search.gd_period() == PlannerConfig().gd_period // 2
+    assert search.gd_period() == PlannerConfig().gd_period // 4
     search.best_cost = cost
     assert search.gd_period() == PlannerConfig().gd_period
 
