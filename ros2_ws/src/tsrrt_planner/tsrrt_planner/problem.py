@@ -402,7 +402,6 @@ class PlanningProblem:
         against it."""
         everyone = np.arange(self.n)
         missing = ~self._approaches_reached(everyone, state) & self.available[:, :4]
-        missing &= self.short_of_faces(state)[:, None]
         directions = _to_world(np.cos(state[:, 2:]), np.sin(state[:, 2:]),
                                self.rates[:, :4, :2])                        # (n, 4, 2)
         first = np.argmax(missing, axis=1)
