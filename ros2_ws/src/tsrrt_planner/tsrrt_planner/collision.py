@@ -188,28 +188,59 @@ def _pose_clear(obj: int, pose: np.ndarray, parent: np.ndarray, half: np.ndarray
 
 
 @kernel
+def swept_pose_clear(obj: int, before: np.ndarray, change: np.ndarray, steps: int,
+                     parent: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                     bounding: np.ndarray, obstacle_poses: np.ndarray,
+                     pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
+                     bounds: np.ndarray, table_allowance: np.ndarray) -> bool:
+    """Object `obj` is clear at before + (j / steps) change (3,) for every j = 1..steps (the
+    last is the end pose), the others as in `parent`."""
+    count = max(steps, 1)
+    pose = np.empty(3)
+    for j in range(count, 0, -1):          # the end pose first: it fails most often
+        fraction = j / count
+        for d in range(3):
+            pose[d] = before[d] + fraction * change[d]
+        if not _pose_clear(obj, pose, parent, half, is_disc, bounding, obstacle_poses,
+                           pair_allowance, obstacle_allowance, margin, bounds, table_allowance):
+            return False
+    return True
+
+
+@kernel
 def _swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray,
                        change: np.ndarray, steps: np.ndarray, half: np.ndarray,
                        is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
                        pair_allowance: np.ndarray, obstacle_allowance: np.ndarray,
                        margin: float, bounds: np.ndarray, table_allowance: np.ndarray
                        ) -> np.ndarray:
-    """(k,) True where object moved[i] is clear at before[i] + (j / steps[i]) change[i] for
-    every j = 1..steps[i] (the last is the end pose)."""
+    """(k,) swept_pose_clear of each moved[i] from before[i] by change[i] in steps[i]."""
     ok = np.ones(len(moved), np.bool_)
-    pose = np.empty(3)
     for i in range(len(moved)):
-        count = max(steps[i], 1)
-        for j in range(count, 0, -1):          # the end pose first: it fails most often
-            fraction = j / count
-            for d in range(3):
-                pose[d] = before[i, d] + fraction * change[i, d]
-            if not _pose_clear(moved[i], pose, parent, half, is_disc, bounding, obstacle_poses,
-                               pair_allowance, obstacle_allowance, margin, bounds,
-                               table_allowance):
-                ok[i] = False
-                break
+        ok[i] = swept_pose_clear(moved[i], before[i], change[i], steps[i], parent, half,
+                                 is_disc, bounding, obstacle_poses, pair_allowance,
+                                 obstacle_allowance, margin, bounds, table_allowance)
     return ok
+
+
+@kernel
+def ball_path_clear(pushed: int, start: np.ndarray, end: np.ndarray, parent: np.ndarray,
+                    half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
+                    obstacle_poses: np.ndarray, clearance: float) -> bool:
+    """The ball's path start-end (2,) keeps `clearance` from every object but `pushed` and
+    from the obstacles."""
+    n = len(parent)
+    for row in range(n + len(obstacle_poses)):
+        if row == pushed:
+            continue
+        other = parent[row] if row < n else obstacle_poses[row - n]
+        # a segment farther from a centre than the bounding circle plus clearance is clear
+        if (_segment_point(start[0], start[1], end[0], end[1], other[0], other[1])
+                > bounding[row] + clearance):
+            continue
+        if segment_footprint_distance(start, end, other, half[row], is_disc[row]) < clearance:
+            return False
+    return True
 
 
 @kernel
@@ -218,20 +249,9 @@ def _ball_paths_clear(parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
                       bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float
                       ) -> np.ndarray:
     ok = np.ones(len(pushed), np.bool_)
-    n = len(parent)
     for i in range(len(pushed)):
-        for row in range(n + len(obstacle_poses)):
-            if row == pushed[i]:
-                continue
-            other = parent[row] if row < n else obstacle_poses[row - n]
-            # a segment farther from a centre than the bounding circle plus clearance is clear
-            if (_segment_point(start[i, 0], start[i, 1], end[i, 0], end[i, 1], other[0],
-                               other[1]) > bounding[row] + clearance):
-                continue
-            if segment_footprint_distance(start[i], end[i], other, half[row],
-                                          is_disc[row]) < clearance:
-                ok[i] = False
-                break
+        ok[i] = ball_path_clear(pushed[i], start[i], end[i], parent, half, is_disc, bounding,
+                                obstacle_poses, clearance)
     return ok
 
 

@@ -49,14 +49,22 @@ from tsrrt_executor.push_primitives import (
     push_geometry,
 )
 from tsrrt_executor.reachability import default_map
-from tsrrt_planner.collision import CollisionChecker, kernel
+from tsrrt_planner.collision import (
+    CollisionChecker,
+    ball_path_clear,
+    kernel,
+    swept_pose_clear,
+)
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.model_learning import MIN_PUSH_LENGTH, ModelStore
 from tsrrt_planner.objectives import Objective, ObjectSet, build_objective
 from tsrrt_planner.reachability import (
     GridReachability,
     Reachability,
+    approach_reached,
     faces_reached,
+    faces_reached_at,
+    segment_reached,
     segments_reached,
 )
 
@@ -164,6 +172,87 @@ def longest_push(models: ModelStore, spec: ObjectSpec) -> float:
     return min(lengths, default=DEFAULT_PUSH_LENGTH)
 
 
+@kernel
+def _pushes_valid(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
+                  change: np.ndarray, steps: np.ndarray, start: np.ndarray, end: np.ndarray,
+                  ok: np.ndarray, collision: tuple, ball_clearance: float, reach: tuple,
+                  reach_spacing: float, face_rule: bool, faces: tuple, retreat_limit: float
+                  ) -> np.ndarray:
+    """`pushes_valid` in one compiled pass, for a grid reach model: each push still `ok` (k,)
+    (length and refusals checked) must keep its way clear (swept_pose_clear), keep the face
+    rule if `face_rule` (as keeps_faces), keep the ball's path in reach and clear of the others.
+
+    collision: the CollisionChecker's arrays (swept_pose_clear's arguments after `parent`);
+    reach: (x0, y0, step, cells); faces: (approach offsets (n, 4, 2), available (n, 4), rates
+    (n, 4, 3), full_faces (n,), face_group (n,), face_allowance (n,)). The per-call overhead of
+    the numpy version (about 60 us, most of a REARRANGE search's time) is gone."""
+    half, is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin, bounds, table_allow \
+        = collision
+    x0, y0, step, cells = reach
+    offsets, available, rates, full, group, allowance = faces
+    n = len(state)
+    stranded = np.zeros(0, np.bool_)   # objects of `state` short of a face, once needed
+    final = np.empty(3)
+    for i in range(len(objects)):
+        if not ok[i]:
+            continue
+        o = objects[i]
+        if not swept_pose_clear(o, before[i], change[i], steps[i], state, half, is_disc,
+                                bounding, obstacles, pair_allow, obstacle_allow, margin, bounds,
+                                table_allow):
+            ok[i] = False
+            continue
+        if face_rule:
+            for d in range(3):
+                final[d] = before[i, d] + change[i, d]
+            faces_before = faces_reached_at(o, before[i], offsets, available, x0, y0, step,
+                                            cells)
+            faces_after = faces_reached_at(o, final, offsets, available, x0, y0, step, cells)
+            if faces_before < full[o] and faces_after <= faces_before and _retreats_from(
+                    o, before[i], final, offsets, available, rates, retreat_limit, reach):
+                ok[i] = False
+                continue
+            if faces_after < faces_before:
+                if len(stranded) == 0:
+                    stranded = np.empty(n, np.bool_)
+                    for j in range(n):
+                        stranded[j] = faces_reached_at(j, state[j], offsets, available, x0, y0,
+                                                       step, cells) < full[j]
+                in_group = 0
+                for j in range(n):
+                    if group[j] == group[o] and stranded[j]:
+                        in_group += 1
+                was = faces_before < full[o]
+                before_count = in_group - stranded[o] + was
+                after_count = before_count - was + (faces_after < full[o])
+                if after_count > max(allowance[group[o]], before_count):
+                    ok[i] = False
+                    continue
+        ok[i] = (segment_reached(start[i], end[i], reach_spacing, x0, y0, step, cells)
+                 and ball_path_clear(o, start[i], end[i], state, half, is_disc, bounding,
+                                     obstacles, ball_clearance))
+    return ok
+
+
+@kernel
+def _retreats_from(obj: int, before: np.ndarray, final: np.ndarray, offsets: np.ndarray,
+                   available: np.ndarray, rates: np.ndarray, limit: float, reach: tuple
+                   ) -> bool:
+    """`PlanningProblem._retreats` for one push of `obj` from `before` to `final` (3,)."""
+    x0, y0, step, cells = reach
+    c, s = math.cos(before[2]), math.sin(before[2])
+    for f in range(4):
+        if not available[obj, f] or approach_reached(obj, f, before[0], before[1], c, s,
+                                                     offsets, x0, y0, step, cells):
+            continue
+        wx = c * rates[obj, f, 0] - s * rates[obj, f, 1]
+        wy = s * rates[obj, f, 0] + c * rates[obj, f, 1]
+        norm = max(math.sqrt(wx * wx + wy * wy), 1e-12)
+        if (wx * (final[0] - before[0]) + wy * (final[1] - before[1])) / norm < -limit:
+            return True
+    return False
+
+
 class PlanningProblem:
     """Everything a planner needs, as arrays in state order (n objects, 6 primitive slots).
 
@@ -248,6 +337,7 @@ class PlanningProblem:
                                  * self.direction[:, :4])
         self.face_group = np.arange(self.n)
         self.face_allowance: np.ndarray | None = None
+        self.face_tables = self._face_tables()
         # (object index, primitive, state) of pushes the robot refused before moving
         self.refused: list[tuple[int, int, np.ndarray]] = []
         self._compile_kernels()
@@ -255,11 +345,12 @@ class PlanningProblem:
     def _compile_kernels(self) -> None:
         """Compile the push checks' kernels (or load them from numba's cache) now, as the
         collision checker does its own: on a fresh install they took 0.5 s of a first plan's
-        first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s more). Each stage is
-        called directly: `pushes_valid` skips the later ones once an earlier one has refused
-        every push."""
+        first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s more). Each stage of
+        the generic check is called directly: it skips the later ones once an earlier one has
+        refused every push."""
         one = np.zeros(1, np.int64)
         pose = self.start[:1]
+        self.pushes_valid(self.start, one, one + 1, np.full(1, self.min_length))
         _, _, start, end = self._geometry(pose, one, one + 1, np.full(1, self.min_length))
         self.checker.swept_valid(self.start, one, pose, np.zeros((1, 3)), one + 1)
         self.path_reachable(start, end)
@@ -288,7 +379,17 @@ class PlanningProblem:
         per_group = np.array([np.bincount(variant.face_group, weights=row, minlength=self.n)
                               for row in stranded])
         variant.face_allowance = per_group.min(axis=0)
+        variant.face_tables = variant._face_tables()
         return variant
+
+    def _face_tables(self) -> tuple[np.ndarray, ...]:
+        """The face rule's arrays as _pushes_valid takes them, contiguous so that every call
+        uses one compiled signature."""
+        allowance = np.zeros(self.n) if self.face_allowance is None else self.face_allowance
+        return (np.ascontiguousarray(self.approach_offsets),
+                np.ascontiguousarray(self.available[:, :4]),
+                np.ascontiguousarray(self.rates[:, :4]), self.full_faces, self.face_group,
+                np.asarray(allowance, float))
 
     def refuse(self, object_index: int, primitive: int, state: np.ndarray) -> None:
         """Mark a push the robot refused before moving in `state` (n, 3) invalid from states
@@ -355,6 +456,17 @@ class PlanningProblem:
         ok = lengths <= self.max_lengths[objects] + 1e-9
         if self.refused:
             ok &= ~self._refused_here(state, objects, primitives, before)
+        if self.reach_cells is not None:
+            checker = self.checker
+            return _pushes_valid(
+                np.asarray(state, float), np.asarray(objects, np.int64),
+                np.asarray(before, float), change, steps, start, end, ok,
+                (checker.shapes.half, checker.shapes.is_disc, checker.shapes.bounding_radius,
+                 checker.shapes.obstacle_poses, checker.pair_allowance,
+                 checker.obstacle_allowance, checker.margin, checker._bounds,
+                 checker.table_allowance), BALL_RADIUS + checker.ball_margin, self.reach_cells,
+                REACH_SPACING, self.face_allowance is not None, self.face_tables,
+                STRANDED_RETREAT)
         # the pushed object's way, checked every max_substep of travel
         alive = np.nonzero(ok)[0]
         ok[alive] = self.checker.swept_valid(state, objects[alive], before[alive],

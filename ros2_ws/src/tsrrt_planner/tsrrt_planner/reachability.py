@@ -54,39 +54,63 @@ def _cell_reachable(x: float, y: float, x0: float, y0: float, step: float,
 
 
 @kernel
+def approach_reached(obj: int, face: int, x: float, y: float, c: float, s: float,
+                     offsets: np.ndarray, x0: float, y0: float, step: float,
+                     cells: np.ndarray) -> bool:
+    """Whether the approach point of `face`, offsets[obj, face] (object frame), of object
+    `obj` at (x, y) with heading cosine c and sine s is in reach."""
+    ox, oy = offsets[obj, face, 0], offsets[obj, face, 1]
+    return _cell_reachable(x + (c * ox - s * oy), y + (s * ox + c * oy), x0, y0, step, cells)
+
+
+@kernel
+def faces_reached_at(obj: int, pose: np.ndarray, offsets: np.ndarray, available: np.ndarray,
+                     x0: float, y0: float, step: float, cells: np.ndarray) -> int:
+    """How many faces f of object `obj` at `pose` (3,) are available[obj, f] and have their
+    approach point in reach."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    count = 0
+    for f in range(offsets.shape[1]):
+        if available[obj, f] and approach_reached(obj, f, pose[0], pose[1], c, s, offsets,
+                                                  x0, y0, step, cells):
+            count += 1
+    return count
+
+
+@kernel
 def faces_reached(objects: np.ndarray, poses: np.ndarray, offsets: np.ndarray,
                   available: np.ndarray, x0: float, y0: float, step: float,
                   cells: np.ndarray) -> np.ndarray:
-    """(k,) how many faces f of objects (k,) at poses (k, 3) are available[object, f] and have
-    their approach point, offsets[object, f] (object frame), in reach."""
+    """(k,) faces_reached_at of objects (k,) at poses (k, 3)."""
     count = np.zeros(len(objects), np.int64)
     for i in range(len(objects)):
-        c, s = math.cos(poses[i, 2]), math.sin(poses[i, 2])
-        for f in range(offsets.shape[1]):
-            if not available[objects[i], f]:
-                continue
-            ox, oy = offsets[objects[i], f, 0], offsets[objects[i], f, 1]
-            if _cell_reachable(poses[i, 0] + (c * ox - s * oy), poses[i, 1] + (s * ox + c * oy),
-                               x0, y0, step, cells):
-                count[i] += 1
+        count[i] = faces_reached_at(objects[i], poses[i], offsets, available, x0, y0, step,
+                                    cells)
     return count
+
+
+@kernel
+def segment_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: float, y0: float,
+                    step: float, cells: np.ndarray) -> bool:
+    """Whether every point of the segment start-end (2,), sampled evenly at most `spacing`
+    apart (ends included), is in reach."""
+    dx, dy = end[0] - start[0], end[1] - start[1]
+    count = max(2, math.ceil(math.sqrt(dx * dx + dy * dy) / spacing) + 1)
+    for j in range(count):
+        fraction = j / (count - 1)
+        if not _cell_reachable(start[0] + fraction * dx, start[1] + fraction * dy, x0, y0,
+                               step, cells):
+            return False
+    return True
 
 
 @kernel
 def segments_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: float, y0: float,
                      step: float, cells: np.ndarray) -> np.ndarray:
-    """(k,) True where every point of the segment start-end (k, 2), sampled evenly at most
-    `spacing` apart (ends included), is in reach."""
+    """(k,) segment_reached of each segment start-end (k, 2)."""
     ok = np.ones(len(start), np.bool_)
     for i in range(len(start)):
-        dx, dy = end[i, 0] - start[i, 0], end[i, 1] - start[i, 1]
-        count = max(2, math.ceil(math.sqrt(dx * dx + dy * dy) / spacing) + 1)
-        for j in range(count):
-            fraction = j / (count - 1)
-            if not _cell_reachable(start[i, 0] + fraction * dx, start[i, 1] + fraction * dy,
-                                   x0, y0, step, cells):
-                ok[i] = False
-                break
+        ok[i] = segment_reached(start[i], end[i], spacing, x0, y0, step, cells)
     return ok
 
 
