@@ -141,7 +141,7 @@ def test_a_negative_shortest_within_is_an_error(problem):
 
 
 def test_a_soft_deadline_stops_a_search_only_once_its_best_is_good_enough(problem, bound):
-    reached = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,
+    reached = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=20000,
                              target=bound.state, soft_deadline=SoftDeadline(0.3, math.inf))
     assert reached.stop_reason == "time" and reached.elapsed_s < 30.0
     never = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=60.0, max_nodes=400,

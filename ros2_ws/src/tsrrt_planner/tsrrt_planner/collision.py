@@ -432,9 +432,15 @@ class CollisionChecker:
         start, the end included (a push's path among the other objects)."""
         return _swept_poses_clear(
             _floats(parent), np.asarray(moved, np.int64), _floats(start), _floats(change),
-            np.asarray(steps, np.int64), self.shapes.half, self.shapes.is_disc,
-            self.shapes.bounding_radius, self.shapes.obstacle_poses, self.pair_allowance,
-            self.obstacle_allowance, self.margin, self._bounds, self.table_allowance)
+            np.asarray(steps, np.int64), *self.pose_tables())
+
+    def pose_tables(self) -> tuple:
+        """The arrays swept_pose_clear takes after `parent` (shapes, allowances, margin,
+        bounds), for compiled checks elsewhere; built per call, as `tolerate` replaces the
+        allowances."""
+        return (self.shapes.half, self.shapes.is_disc, self.shapes.bounding_radius,
+                self.shapes.obstacle_poses, self.pair_allowance, self.obstacle_allowance,
+                self.margin, self._bounds, self.table_allowance)
 
     def table_clearances_rows(self, rows: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """Table clearances (k, 4) of objects `rows` (k,) at poses (k, 3)."""

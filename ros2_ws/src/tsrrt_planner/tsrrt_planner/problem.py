@@ -64,6 +64,8 @@ from tsrrt_planner.reachability import (
     approach_reached,
     faces_reached,
     faces_reached_at,
+    points_reached,
+    rasterised,
     segment_reached,
     segments_reached,
 )
@@ -173,25 +175,87 @@ def longest_push(models: ModelStore, spec: ObjectSpec) -> float:
 
 
 @kernel
-def _pushes_valid(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
-                  change: np.ndarray, steps: np.ndarray, start: np.ndarray, end: np.ndarray,
-                  ok: np.ndarray, collision: tuple, ball_clearance: float, reach: tuple,
-                  reach_spacing: float, face_rule: bool, faces: tuple, retreat_limit: float
-                  ) -> np.ndarray:
-    """`pushes_valid` in one compiled pass, for a grid reach model: each push still `ok` (k,)
-    (length and refusals checked) must keep its way clear (swept_pose_clear), keep the face
-    rule if `face_rule` (as keeps_faces), keep the ball's path in reach and clear of the others.
+def refused_pushes(primitives: np.ndarray, before: np.ndarray, refusals: np.ndarray,
+                   period: float) -> np.ndarray:
+    """(k,) True for pushes of one object with `primitives` (k,) from poses `before` (k, 3)
+    that it was refused from (nearly) there: refusals (m, 4) are primitive, x, y, theta
+    (`PlanningProblem.refusals_for`)."""
+    refused = np.zeros(len(primitives), np.bool_)
+    for i in range(len(primitives)):
+        for r in range(len(refusals)):
+            if primitives[i] != refusals[r, 0]:
+                continue
+            turn = before[i, 2] - refusals[r, 3]
+            turn = (turn + period / 2) % period - period / 2 if period > 0 else 0.0
+            if (math.hypot(before[i, 0] - refusals[r, 1], before[i, 1] - refusals[r, 2])
+                    <= REFUSED_RADIUS and abs(turn) <= REFUSED_TURN):
+                refused[i] = True
+                break
+    return refused
 
-    collision: the CollisionChecker's arrays (swept_pose_clear's arguments after `parent`);
-    reach: (x0, y0, step, cells); faces: (approach offsets (n, 4, 2), available (n, 4), rates
-    (n, 4, 3), full_faces (n,), face_group (n,), face_allowance (n,)). The per-call overhead of
-    the numpy version (about 60 us, most of a REARRANGE search's time) is gone."""
+
+@kernel
+def stranded_objects(state: np.ndarray, faces: tuple, reach: tuple) -> np.ndarray:
+    """(n,) True for the objects of `state` short of a reachable face; `faces` and `reach` as
+    in PlanningProblem.check_tables()."""
+    offsets, available, _, full, _, _ = faces
+    x0, y0, step, cells = reach
+    stranded = np.empty(len(state), np.bool_)
+    for j in range(len(state)):
+        stranded[j] = faces_reached_at(j, state[j], offsets, available, x0, y0, step,
+                                       cells) < full[j]
+    return stranded
+
+
+@kernel
+def keeps_face_rule(obj: int, before: np.ndarray, final: np.ndarray, stranded: np.ndarray,
+                    faces: tuple, reach: tuple, retreat_limit: float) -> bool:
+    """The face rule (PlanningProblem.with_face_allowance) for moving `obj` from `before` to
+    `final` (3,), `stranded` being stranded_objects of the state it moves in: it may leave its
+    group no more stranded objects than the allowance or than before, and an object short of a
+    face may not move more than `retreat_limit` against the push of a face the arm cannot
+    reach (only that face could undo the move)."""
+    offsets, available, rates, full, group, allowance = faces
+    x0, y0, step, cells = reach
+    faces_before = faces_reached_at(obj, before, offsets, available, x0, y0, step, cells)
+    faces_after = faces_reached_at(obj, final, offsets, available, x0, y0, step, cells)
+    if faces_before < full[obj] and faces_after <= faces_before:
+        c, s = math.cos(before[2]), math.sin(before[2])
+        for f in range(4):
+            if not available[obj, f] or approach_reached(obj, f, before[0], before[1], c, s,
+                                                         offsets, x0, y0, step, cells):
+                continue
+            wx = c * rates[obj, f, 0] - s * rates[obj, f, 1]
+            wy = s * rates[obj, f, 0] + c * rates[obj, f, 1]
+            norm = max(math.sqrt(wx * wx + wy * wy), 1e-12)
+            if (wx * (final[0] - before[0]) + wy * (final[1] - before[1])) / norm < -retreat_limit:
+                return False
+    if faces_after >= faces_before:
+        return True
+    in_group = 0
+    for j in range(len(stranded)):
+        if group[j] == group[obj] and stranded[j]:
+            in_group += 1
+    was = faces_before < full[obj]
+    before_count = in_group - stranded[obj] + was
+    after_count = before_count - was + (faces_after < full[obj])
+    return after_count <= max(allowance[group[obj]], before_count)
+
+
+@kernel
+def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
+                          change: np.ndarray, steps: np.ndarray, start: np.ndarray,
+                          end: np.ndarray, ok: np.ndarray, tables: tuple) -> np.ndarray:
+    """`pushes_valid` in one compiled pass: each push still `ok` (k,) (length and refusals
+    checked) must keep its way clear (swept_pose_clear), keep the face rule if the problem has
+    one (keeps_face_rule), and keep the ball's path in reach and clear of the others.
+    `tables` are PlanningProblem.check_tables(). A numpy version spent about 60 us a call in
+    per-call overhead, most of a REARRANGE search's time."""
+    collision, ball_clearance, reach, reach_spacing, face_rule, faces, retreat_limit = tables
     half, is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin, bounds, table_allow \
         = collision
     x0, y0, step, cells = reach
-    offsets, available, rates, full, group, allowance = faces
-    n = len(state)
-    stranded = np.zeros(0, np.bool_)   # objects of `state` short of a face, once needed
+    stranded = stranded_objects(state, faces, reach) if face_rule else np.zeros(0, np.bool_)
     final = np.empty(3)
     for i in range(len(objects)):
         if not ok[i]:
@@ -205,52 +269,13 @@ def _pushes_valid(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
         if face_rule:
             for d in range(3):
                 final[d] = before[i, d] + change[i, d]
-            faces_before = faces_reached_at(o, before[i], offsets, available, x0, y0, step,
-                                            cells)
-            faces_after = faces_reached_at(o, final, offsets, available, x0, y0, step, cells)
-            if faces_before < full[o] and faces_after <= faces_before and _retreats_from(
-                    o, before[i], final, offsets, available, rates, retreat_limit, reach):
+            if not keeps_face_rule(o, before[i], final, stranded, faces, reach, retreat_limit):
                 ok[i] = False
                 continue
-            if faces_after < faces_before:
-                if len(stranded) == 0:
-                    stranded = np.empty(n, np.bool_)
-                    for j in range(n):
-                        stranded[j] = faces_reached_at(j, state[j], offsets, available, x0, y0,
-                                                       step, cells) < full[j]
-                in_group = 0
-                for j in range(n):
-                    if group[j] == group[o] and stranded[j]:
-                        in_group += 1
-                was = faces_before < full[o]
-                before_count = in_group - stranded[o] + was
-                after_count = before_count - was + (faces_after < full[o])
-                if after_count > max(allowance[group[o]], before_count):
-                    ok[i] = False
-                    continue
         ok[i] = (segment_reached(start[i], end[i], reach_spacing, x0, y0, step, cells)
                  and ball_path_clear(o, start[i], end[i], state, half, is_disc, bounding,
                                      obstacles, ball_clearance))
     return ok
-
-
-@kernel
-def _retreats_from(obj: int, before: np.ndarray, final: np.ndarray, offsets: np.ndarray,
-                   available: np.ndarray, rates: np.ndarray, limit: float, reach: tuple
-                   ) -> bool:
-    """`PlanningProblem._retreats` for one push of `obj` from `before` to `final` (3,)."""
-    x0, y0, step, cells = reach
-    c, s = math.cos(before[2]), math.sin(before[2])
-    for f in range(4):
-        if not available[obj, f] or approach_reached(obj, f, before[0], before[1], c, s,
-                                                     offsets, x0, y0, step, cells):
-            continue
-        wx = c * rates[obj, f, 0] - s * rates[obj, f, 1]
-        wy = s * rates[obj, f, 0] + c * rates[obj, f, 1]
-        norm = max(math.sqrt(wx * wx + wy * wy), 1e-12)
-        if (wx * (final[0] - before[0]) + wy * (final[1] - before[1])) / norm < -limit:
-            return True
-    return False
 
 
 class PlanningProblem:
@@ -283,9 +308,10 @@ class PlanningProblem:
         self.checker = CollisionChecker(self.objects, scenario.obstacles, scenario.table.bounds,
                                         margin=margin, ball_margin=ball_margin)
         self.reachability = reachability if reachability is not None else default_map()
-        # a grid reach model is looked up by compiled loops (reachability.py)
+        # the push checks look reach up on a grid (reachability.py)
         self.reach_cells = (self.reachability.reach_cells()
-                            if isinstance(self.reachability, GridReachability) else None)
+                            if isinstance(self.reachability, GridReachability)
+                            else rasterised(self.reachability, scenario.table.bounds))
         self.max_substep = max_substep
         models.check_covers([(o.id, o.object_class, o.shape) for o in scenario.objects
                              if not out_of_reach(o, self.reachability, scenario.table.height)],
@@ -345,16 +371,11 @@ class PlanningProblem:
     def _compile_kernels(self) -> None:
         """Compile the push checks' kernels (or load them from numba's cache) now, as the
         collision checker does its own: on a fresh install they took 0.5 s of a first plan's
-        first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s more). Each stage of
-        the generic check is called directly: it skips the later ones once an earlier one has
-        refused every push."""
-        one = np.zeros(1, np.int64)
-        pose = self.start[:1]
+        first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s more)."""
+        one, pose = np.zeros(1, np.int64), self.start[:1]
         self.pushes_valid(self.start, one, one + 1, np.full(1, self.min_length))
-        _, _, start, end = self._geometry(pose, one, one + 1, np.full(1, self.min_length))
-        self.checker.swept_valid(self.start, one, pose, np.zeros((1, 3)), one + 1)
-        self.path_reachable(start, end)
         self.reachable_faces(one, pose)
+        self._approaches_reached(one, pose)
 
     def with_face_allowance(self, targets: Sequence[np.ndarray],
                             groups: Sequence[np.ndarray]) -> PlanningProblem:
@@ -398,22 +419,42 @@ class PlanningProblem:
         same state to 0.3 mm, and it was refused again."""
         self.refused.append((int(object_index), int(primitive), np.array(state, dtype=float)))
 
+    def refusals_for(self, index: int, state: np.ndarray) -> np.ndarray:
+        """(m, 4) primitive and pose (x, y, theta) of object `index` for each of its refused
+        pushes (`refuse`) that stand for `state` (n, 3): refused with every other object
+        within REFUSED_RADIUS of where it is now."""
+        others = np.arange(self.n) != index
+        rows = [[primitive, *where[index]] for obj, primitive, where in self.refused
+                if obj == index and np.abs(state[others, :2] - where[others, :2]).max(
+                    initial=0.0) <= REFUSED_RADIUS]
+        return np.array(rows, float).reshape(-1, 4)
+
     def _refused_here(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                       before: np.ndarray) -> np.ndarray:
         """(k,) True for pushes refused from (nearly) this state (`refuse`)."""
         refused = np.zeros(len(objects), bool)
-        for index, primitive, where in self.refused:
-            same = np.nonzero((objects == index) & (primitives == primitive))[0]
-            if len(same) == 0:
-                continue
-            others = np.arange(self.n) != index
-            if np.abs(state[others, :2] - where[others, :2]).max(initial=0.0) > REFUSED_RADIUS:
-                continue
-            moved = np.linalg.norm(before[same, :2] - where[index, :2], axis=1)
-            turned = np.abs(shortest_turn(before[same, 2] - where[index, 2],
-                                          self.angle_period[index]))
-            refused[same] |= (moved <= REFUSED_RADIUS) & (turned <= REFUSED_TURN)
+        for index in {obj for obj, _, _ in self.refused}:
+            rows = np.nonzero(objects == index)[0]
+            if len(rows):
+                refused[rows] = refused_pushes(
+                    np.asarray(primitives[rows], np.int64), np.asarray(before[rows], float),
+                    self.refusals_for(index, state), self.angle_period[index])
         return refused
+
+    def geometry_tables(self) -> tuple:
+        """What _push_geometry needs besides the pushes, then the longest push per object and
+        the shortest push, for compiled searches (rearrange.object_path)."""
+        return (self.rates, self.contact, self.direction, self.objects.half_length,
+                self.max_substep, BALL_RADIUS, APPROACH_CLEARANCE, self.max_lengths,
+                self.min_length)
+
+    def check_tables(self) -> tuple:
+        """Everything pushes_valid_compiled checks a push against but the state: the collision
+        checker's arrays, the ball's clearance, the reach grid and its sampling, whether the
+        face rule applies, its tables and STRANDED_RETREAT."""
+        return (self.checker.pose_tables(), BALL_RADIUS + self.checker.ball_margin,
+                self.reach_cells, REACH_SPACING, self.face_allowance is not None,
+                self.face_tables, STRANDED_RETREAT)
 
     # ------------------------------------------------------------------ forward model
     def push_directions(self, state: np.ndarray, objects: np.ndarray,
@@ -448,40 +489,15 @@ class PlanningProblem:
     def pushes_valid(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                      lengths: np.ndarray, poses: np.ndarray | None = None) -> np.ndarray:
         """(k,) validity of pushes on state (n, 3); see the module docstring for the rules."""
-        k = len(objects)
-        if k == 0:
+        if len(objects) == 0:
             return np.zeros(0, bool)
-        before = state[objects] if poses is None else poses
+        before = np.asarray(state[objects] if poses is None else poses, float)
         change, steps, start, end = self._geometry(before, objects, primitives, lengths)
         ok = lengths <= self.max_lengths[objects] + 1e-9
         if self.refused:
             ok &= ~self._refused_here(state, objects, primitives, before)
-        if self.reach_cells is not None:
-            checker = self.checker
-            return _pushes_valid(
-                np.asarray(state, float), np.asarray(objects, np.int64),
-                np.asarray(before, float), change, steps, start, end, ok,
-                (checker.shapes.half, checker.shapes.is_disc, checker.shapes.bounding_radius,
-                 checker.shapes.obstacle_poses, checker.pair_allowance,
-                 checker.obstacle_allowance, checker.margin, checker._bounds,
-                 checker.table_allowance), BALL_RADIUS + checker.ball_margin, self.reach_cells,
-                REACH_SPACING, self.face_allowance is not None, self.face_tables,
-                STRANDED_RETREAT)
-        # the pushed object's way, checked every max_substep of travel
-        alive = np.nonzero(ok)[0]
-        ok[alive] = self.checker.swept_valid(state, objects[alive], before[alive],
-                                             change[alive], steps[alive])
-        if self.face_allowance is not None:
-            alive = np.nonzero(ok)[0]
-            ok[alive] = self.keeps_faces(state, objects[alive], before[alive],
-                                         before[alive] + change[alive])
-        alive = np.nonzero(ok)[0]
-        if len(alive):
-            reach = self.path_reachable(start[alive], end[alive])
-            clear = self.checker.ball_paths_clear(state, objects[alive], start[alive],
-                                                  end[alive], BALL_RADIUS)
-            ok[alive] = reach & clear
-        return ok
+        return pushes_valid_compiled(np.asarray(state, float), np.asarray(objects, np.int64),
+                                     before, change, steps, start, end, ok, self.check_tables())
 
     def _geometry(self, before: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                   lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -495,11 +511,8 @@ class PlanningProblem:
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start
         from an approach point the arm reaches."""
-        if self.reach_cells is not None:
-            return faces_reached(np.asarray(objects, np.int64), np.asarray(poses, float),
-                                 self.approach_offsets, self.available[:, :4], *self.reach_cells)
-        return (self._approaches_reached(objects, poses)
-                & self.available[objects, :4]).sum(axis=1)
+        return faces_reached(np.asarray(objects, np.int64), np.asarray(poses, float),
+                             self.approach_offsets, self.available[:, :4], *self.reach_cells)
 
     def short_of_faces(self, state: np.ndarray) -> np.ndarray:
         """(n,) True for the objects of `state` (n, 3) that are short of a reachable face
@@ -526,68 +539,29 @@ class PlanningProblem:
         (1-4) of `objects` at `poses` (k, 3), whether the object has that primitive or not."""
         approach = poses[:, None, :2] + _to_world(                     # (k, 4, 2)
             np.cos(poses[:, 2:]), np.sin(poses[:, 2:]), self.approach_offsets[objects])
-        return self.reachability.reachable(approach.reshape(-1, 2)).reshape(len(objects), 4)
+        return points_reached(approach.reshape(-1, 2), *self.reach_cells).reshape(
+            len(objects), 4)
 
     def keeps_faces(self, state: np.ndarray, objects: np.ndarray, before: np.ndarray,
                     final: np.ndarray) -> np.ndarray:
-        """(k,) the face rule (`with_face_allowance`) for pushes of `objects` from `before`
-        to `final` (k, 3), the other objects as in `state`."""
-        faces_before = self.reachable_faces(objects, before)
-        faces_after = self.reachable_faces(objects, final)
-        ok = faces_after >= faces_before
-        retreat = self._retreats(objects, before, final,
-                                 (faces_before < self.full_faces[objects])
-                                 & (faces_after <= faces_before))
-        losing = np.nonzero(~ok)[0]
-        if len(losing) == 0:
-            return ok & ~retreat
-        stranded_now = self.short_of_faces(state)
-        objects, group = objects[losing], self.face_group[objects[losing]]
-        full = self.full_faces[objects]
-        was_stranded = faces_before[losing] < full
-        stranded_before = (np.bincount(self.face_group, weights=stranded_now,
-                                       minlength=self.n)[group]
-                           - stranded_now[objects] + was_stranded)
-        stranded_after = stranded_before - was_stranded + (faces_after[losing] < full)
-        ok[losing] = stranded_after <= np.maximum(self.face_allowance[group], stranded_before)
-        return ok & ~retreat
-
-    def _retreats(self, objects: np.ndarray, before: np.ndarray, final: np.ndarray,
-                  short: np.ndarray) -> np.ndarray:
-        """(k,) True for pushes of objects still `short` of a face that move them more than
-        STRANDED_RETREAT against the push of a face the arm cannot reach: only that face
-        could undo the move."""
-        retreat = np.zeros(len(objects), bool)
-        rows = np.nonzero(short)[0]
-        if len(rows) == 0:
-            return retreat
-        o, pose = objects[rows], before[rows]
-        missing = ~self._approaches_reached(o, pose) & self.available[o, :4]   # (m, 4)
-        directions = _to_world(np.cos(pose[:, 2:]), np.sin(pose[:, 2:]),
-                               self.rates[o, :4, :2])                       # (m, 4, 2)
-        norms = np.maximum(np.linalg.norm(directions, axis=-1), 1e-12)
-        along = np.einsum("mjd,md->mj", directions, final[rows, :2] - pose[:, :2]) / norms
-        retreat[rows] = (missing & (along < -STRANDED_RETREAT)).any(axis=1)
-        return retreat
+        """(k,) the face rule (`with_face_allowance`, keeps_face_rule) for moving `objects`
+        from `before` to `final` (k, 3), the other objects as in `state`; all True without
+        the rule."""
+        _, _, reach, _, face_rule, faces, retreat_limit = self.check_tables()
+        if not face_rule:
+            return np.ones(len(objects), bool)
+        stranded = stranded_objects(np.asarray(state, float), faces, reach)
+        return np.array([keeps_face_rule(int(o), np.asarray(b, float), np.asarray(f, float),
+                                         stranded, faces, reach, retreat_limit)
+                         for o, b, f in zip(objects, before, final, strict=True)], bool)
 
     def path_reachable(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """(k,) True when the arm reaches every point of the ball paths start-end (k, 2),
         each sampled evenly at most REACH_SPACING apart as the executor checks it (the reachable
         region is not convex near the base, so both ends reachable does not make the middle
         so)."""
-        if self.reach_cells is not None:
-            return segments_reached(np.asarray(start, float), np.asarray(end, float),
-                                    REACH_SPACING, *self.reach_cells)
-        if len(start) == 0:
-            return np.zeros(0, bool)
-        delta = end - start
-        counts = np.maximum(2, np.ceil(np.sqrt(delta[:, 0] ** 2 + delta[:, 1] ** 2)
-                                       / REACH_SPACING).astype(np.int64) + 1)
-        firsts = np.cumsum(counts) - counts
-        owner = np.repeat(np.arange(len(start)), counts)
-        fractions = (np.arange(counts.sum()) - firsts[owner]) / (counts[owner] - 1)
-        points = start[owner] + fractions[:, None] * delta[owner]
-        return np.logical_and.reduceat(self.reachability.reachable(points), firsts)
+        return segments_reached(np.asarray(start, float), np.asarray(end, float),
+                                REACH_SPACING, *self.reach_cells)
 
     def state_valid(self, state: np.ndarray) -> bool:
         return self.checker.state_valid(state)

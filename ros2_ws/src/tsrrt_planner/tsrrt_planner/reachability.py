@@ -24,6 +24,9 @@ import numpy as np
 from tsrrt_planner.collision import kernel
 from tsrrt_planner.errors import PlannerError
 
+RASTER_STEP = 0.002  # metres: cells of a reach model the planner rasterises (`rasterised`)
+RASTER_PAD = 0.25    # metres beyond the table's edges it covers: ball paths start off the table
+
 
 class Reachability(Protocol):
     """Anything that says which ball-centre points (k, 2) the arm can reach."""
@@ -112,6 +115,33 @@ def segments_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: flo
     for i in range(len(start)):
         ok[i] = segment_reached(start[i], end[i], spacing, x0, y0, step, cells)
     return ok
+
+
+@kernel
+def points_reached(points: np.ndarray, x0: float, y0: float, step: float, cells: np.ndarray
+                   ) -> np.ndarray:
+    """(k,) whether each of points (k, 2) is in reach."""
+    reached = np.empty(len(points), np.bool_)
+    for i in range(len(points)):
+        reached[i] = _cell_reachable(points[i, 0], points[i, 1], x0, y0, step, cells)
+    return reached
+
+
+def rasterised(reachability: Reachability, table_bounds: tuple[float, float, float, float],
+               step: float = RASTER_STEP, pad: float = RASTER_PAD
+               ) -> tuple[float, float, float, np.ndarray]:
+    """A reach model that is no grid as reach_cells over the table, `pad` beyond its edges:
+    a cell counts only if the model reaches its four corners (as the executor's map counts its
+    own), so the planner never uses a point the model does not reach but within a hair of a
+    circular boundary."""
+    x_min, y_min, x_max, y_max = table_bounds
+    xs = np.arange(x_min - pad, x_max + pad + step, step)
+    ys = np.arange(y_min - pad, y_max + pad + step, step)
+    grid_x, grid_y = np.meshgrid(xs, ys)
+    nodes = np.asarray(reachability.reachable(np.column_stack([grid_x.ravel(), grid_y.ravel()])),
+                       bool).reshape(len(ys), len(xs))
+    cells = nodes[:-1, :-1] & nodes[:-1, 1:] & nodes[1:, :-1] & nodes[1:, 1:]
+    return float(xs[0]), float(ys[0]), step, cells
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,13 @@ from collections.abc import Callable
 import numpy as np
 
 from tsrrt_planner.collision import kernel
-from tsrrt_planner.problem import PlanningProblem, shortest_turn
+from tsrrt_planner.problem import (
+    PlanningProblem,
+    _push_geometry,
+    pushes_valid_compiled,
+    refused_pushes,
+    shortest_turn,
+)
 
 Push = tuple[int, int, float]  # (object index, primitive, push length)
 PATH_PUSH_COST = 0.01   # metres of remaining error one extra push is worth (weighted A*)
@@ -68,6 +74,17 @@ def object_error(problem: PlanningProblem, index: int, poses: np.ndarray, goal: 
 
 
 @kernel
+def _pose_key(x: float, y: float, theta: float, weight: float, period: float) -> int:
+    """One integer for a pose's duplicate-pose grid cell (KEY_RESOLUTION), heading reduced
+    modulo the symmetry: 21 bits per axis, far more than a table needs."""
+    kx = round(x / KEY_RESOLUTION)
+    ky = round(y / KEY_RESOLUTION)
+    kt = round(weight * (theta % period if period > 0 else 0.0) / KEY_RESOLUTION)
+    offset = 1 << 20
+    return ((kx + offset) << 42) | ((ky + offset) << 21) | (kt + offset)
+
+
+@kernel
 def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: np.ndarray,
             weight: float, period: float, longest: float, shortest: float,
             fractions: np.ndarray, detours: np.ndarray
@@ -81,7 +98,8 @@ def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: 
 
     Returns:
         rows (k,) into `poses`, primitives (k,), lengths (k,), the poses after the pushes
-        (k, 3), their weighted errors to `goal` (object_error) and duplicate-pose keys (k, 3).
+        (k, 3), their weighted errors to `goal` (object_error) and duplicate-pose keys
+        (k,) (_pose_key).
     """
     per_pose = len(primitives) * (len(fractions) + len(detours))
     total = len(poses) * per_pose
@@ -90,7 +108,7 @@ def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: 
     lengths = np.empty(total)
     new = np.empty((total, 3))
     errors = np.empty(total)
-    keys = np.empty((total, 3), np.int64)
+    keys = np.empty(total, np.int64)
     w2 = weight ** 2
     k = 0
     for b in range(len(poses)):
@@ -116,12 +134,104 @@ def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: 
                 rows[k], kinds[k], lengths[k] = b, primitive, length
                 new[k, 0], new[k, 1], new[k, 2] = nx, ny, nt
                 errors[k] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
-                keys[k, 0] = np.rint(nx / KEY_RESOLUTION)
-                keys[k, 1] = np.rint(ny / KEY_RESOLUTION)
-                keys[k, 2] = np.rint(weight * (nt % period if period > 0 else 0.0)
-                                     / KEY_RESOLUTION)
+                keys[k] = _pose_key(nx, ny, nt, weight, period)
                 k += 1
     return rows[:k], kinds[:k], lengths[:k], new[:k], errors[:k], keys[:k]
+
+
+@kernel
+def _object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: float,
+                 period: float, tolerance: float, max_expansions: int, batch: int,
+                 primitives: np.ndarray, fractions: np.ndarray, detours: np.ndarray,
+                 refusals: np.ndarray, geometry: tuple, checks: tuple
+                 ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """object_path's search, compiled whole: each round pops `batch` nodes, expands them
+    (_expand), drops poses already seen and checks the rest (pushes_valid_compiled) in one
+    batch. `geometry` is PlanningProblem.geometry_tables(), `checks` its check_tables().
+
+    Returns:
+        the path's primitives and lengths, and whether it reached the goal.
+    """
+    rates, contact, direction, half_length, max_substep, ball_radius, clearance, \
+        max_lengths, shortest = geometry
+    longest = max_lengths[index]
+    per_pose = len(primitives) * (len(fractions) + len(detours))
+    capacity = 1 + max_expansions * per_pose
+    poses = np.empty((capacity, 3))
+    parents = np.empty(capacity, np.int64)
+    kinds = np.empty(capacity, np.int64)
+    lengths = np.empty(capacity)
+    errors = np.empty(capacity)
+    depths = np.empty(capacity, np.int64)
+    poses[0] = state[index]
+    parents[0], depths[0] = -1, 0
+    dx, dy = goal[0] - poses[0, 0], goal[1] - poses[0, 1]
+    dt = goal[2] - poses[0, 2]
+    dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
+    errors[0] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
+    if errors[0] <= tolerance:
+        return np.zeros(0, np.int64), np.zeros(0), True
+    size, best = 1, 0
+    queue = [(errors[0], 0)]
+    seen = {_pose_key(poses[0, 0], poses[0, 1], poses[0, 2], weight, period)}
+    expansions = 0
+    while len(queue) > 0 and expansions < max_expansions:
+        count = min(batch, len(queue))
+        nodes = np.empty(count, np.int64)
+        for b in range(count):
+            nodes[b] = heapq.heappop(queue)[1]
+        expansions += count
+        expanded = poses[nodes]
+        rows, kind, length, new, error, keys = _expand(
+            expanded, rates[index], primitives, goal, weight, period, longest, shortest,
+            fractions, detours)
+        fresh = np.zeros(len(rows), np.bool_)
+        for k in range(len(rows)):
+            fresh[k] = keys[k] not in seen
+        tried = np.nonzero(fresh)[0]
+        if len(tried) == 0:
+            continue
+        objects = np.full(len(tried), index)
+        before = expanded[rows[tried]]
+        change, steps, start, end = _push_geometry(
+            before, rates, contact, direction, objects, kind[tried], length[tried],
+            half_length, max_substep, ball_radius, clearance)
+        ok = ((length[tried] <= longest + 1e-9)
+              & ~refused_pushes(kind[tried], before, refusals, period))
+        valid = tried[pushes_valid_compiled(state, objects, before, change, steps, start, end,
+                                            ok, checks)]
+        for k in valid[np.argsort(error[valid], kind="mergesort")]:
+            if keys[k] in seen:
+                continue
+            seen.add(keys[k])
+            child = size
+            size += 1
+            poses[child] = new[k]
+            parents[child] = nodes[rows[k]]
+            kinds[child], lengths[child], errors[child] = kind[k], length[k], error[k]
+            depths[child] = depths[parents[child]] + 1
+            if errors[child] < errors[best]:
+                best = child
+            if errors[child] <= tolerance:
+                return _trace(parents, kinds, lengths, child) + (True,)
+            heapq.heappush(queue, (errors[child] + PATH_PUSH_COST * depths[child], child))
+    return _trace(parents, kinds, lengths, best) + (False,)
+
+
+@kernel
+def _trace(parents: np.ndarray, kinds: np.ndarray, lengths: np.ndarray, node: int
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Primitives and lengths of the pushes from the root to `node`."""
+    depth, walk = 0, node
+    while walk > 0:
+        depth += 1
+        walk = parents[walk]
+    path_kinds = np.empty(depth, np.int64)
+    path_lengths = np.empty(depth)
+    for d in range(depth - 1, -1, -1):
+        path_kinds[d], path_lengths[d] = kinds[node], lengths[node]
+        node = parents[node]
+    return path_kinds, path_lengths
 
 
 def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: np.ndarray,
@@ -130,83 +240,32 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     """Pushes that move object `index` from its pose in `state` (n, 3) towards `goal` (3,) with
     every other object fixed: weighted A* over the object's pose (f = remaining error +
     PATH_PUSH_COST per push), expanding `batch` nodes per validity check, duplicate poses
-    pruned on a KEY_RESOLUTION grid.
+    pruned on a KEY_RESOLUTION grid. Compiled whole for a grid reach model (the Python loop
+    was most of REARRANGE's time); `tick` (the search's budget check) runs before it.
 
     Returns:
         (pushes, reached): the path to the first pose within `tolerance` of the goal (reached
         True) or, when the search ran out of expansions, to the closest pose found if it is
         closer than the start (reached False); an empty list when nothing helps.
     """
-    period = problem.angle_period[index]
-    start = state[index].copy()
-    poses, parents, actions = [start], [-1], [(-1, -1, 0.0)]
-    errors = [float(object_error(problem, index, start[None], goal, weight)[0])]
-    depths = [0]
-    best = 0
-    if errors[0] <= tolerance:
-        return [], True
-    queue = [(errors[0], 0)]  # (f, node)
-    own_primitives = problem.action_primitives[problem.action_objects == index]
+    tick()
+    state = np.asarray(state, float)
     longest = float(problem.max_lengths[index])
-    detours = np.unique(np.minimum(FIXED_LENGTHS, longest))  # one 5 cm push, not two
-    seen = {_key(start, weight, period)}
-    expansions = 0
-    while queue and expansions < max_expansions:
-        tick()
-        nodes = [heapq.heappop(queue)[1] for _ in range(min(batch, len(queue)))]
-        expansions += len(nodes)
-        expanded = np.array([poses[node] for node in nodes])
-        rows, primitives, lengths, new, error, cells = _expand(
-            expanded, problem.rates[index], own_primitives, goal, weight, period, longest,
-            problem.min_length, STEER_FRACTIONS, detours)
-        owner = np.array(nodes)[rows]
-        before = expanded[rows]
-        objects = np.full(len(primitives), index)
-        keys = list(map(tuple, cells.tolist()))
-        fresh = np.array([key not in seen for key in keys], bool)
-        if not fresh.any():
-            continue
-        valid = np.zeros(len(new), bool)
-        valid[fresh] = problem.pushes_valid(state, objects[fresh], primitives[fresh],
-                                            lengths[fresh], before[fresh])
-        for k in np.nonzero(valid)[0][np.argsort(error[valid], kind="stable")]:
-            if keys[k] in seen:
-                continue
-            seen.add(keys[k])
-            poses.append(new[k])
-            parents.append(int(owner[k]))
-            actions.append((index, int(primitives[k]), float(lengths[k])))
-            errors.append(float(error[k]))
-            depths.append(depths[int(owner[k])] + 1)
-            child = len(poses) - 1
-            if errors[child] < errors[best]:
-                best = child
-            if errors[child] <= tolerance:
-                return _trace(parents, actions, child), True
-            heapq.heappush(queue, (errors[child] + PATH_PUSH_COST * depths[child], child))
-    return (_trace(parents, actions, best) if best else []), False
+    kinds, lengths, reached = _object_path(
+        state, index, np.asarray(goal, float), weight, float(problem.angle_period[index]),
+        tolerance, max_expansions, batch,
+        problem.action_primitives[problem.action_objects == index], STEER_FRACTIONS,
+        np.unique(np.minimum(FIXED_LENGTHS, longest)),  # one 5 cm push, not two
+        problem.refusals_for(index, state), problem.geometry_tables(), problem.check_tables())
+    return [(index, int(k), float(length))
+            for k, length in zip(kinds.tolist(), lengths.tolist(), strict=True)], reached
 
 
 def compile_kernels(problem: PlanningProblem) -> None:
-    """Compile `_expand` (or load it from numba's cache) before a search's clock starts."""
+    """Compile object_path's search (or load it from numba's cache) before a search's clock
+    starts."""
     goal = problem.start[0] + np.array([0.01, 0.0, 0.0])
     object_path(problem, problem.start, 0, goal, 1.0, lambda: None, max_expansions=1)
-
-
-def _key(pose: np.ndarray, weight: float, period: float) -> tuple[int, int, int]:
-    """Grid cell (KEY_RESOLUTION) of a pose (3,), heading reduced modulo the symmetry (as
-    _expand keys the poses it makes)."""
-    angle = pose[2] % period if period > 0 else 0.0
-    return (int(np.rint(pose[0] / KEY_RESOLUTION)), int(np.rint(pose[1] / KEY_RESOLUTION)),
-            int(np.rint(weight * angle / KEY_RESOLUTION)))
-
-
-def _trace(parents: list[int], actions: list[Push], node: int) -> list[Push]:
-    path = []
-    while node > 0:
-        path.append(actions[node])
-        node = parents[node]
-    return path[::-1]
 
 
 def footprints_clear(problem: PlanningProblem, rows_a: np.ndarray, poses_a: np.ndarray,
