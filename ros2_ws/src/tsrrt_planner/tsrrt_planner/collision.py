@@ -319,7 +319,6 @@ class CollisionChecker:
         # Compile the kernels (or load them from numba's cache) now, not in the first plan.
         no_rows = np.zeros(0, np.int64)
         self.moved_objects_valid(np.zeros((n, 3)), no_rows, np.zeros((0, 3)))
-        self.ball_paths_clear(np.zeros((n, 3)), no_rows, np.zeros((0, 2)), np.zeros((0, 2)), 0.0)
         self.shapes.pair_signed_distance(no_rows, np.zeros((0, 3)), no_rows, np.zeros((0, 3)))
 
     def tolerate(self, state: np.ndarray) -> tuple[float, float]:

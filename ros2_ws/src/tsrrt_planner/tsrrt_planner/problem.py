@@ -19,11 +19,14 @@ A push is valid when (all checked in `pushes_valid`, vectorised over candidates)
   use pushes the robot can do);
 * with a face allowance (`with_face_allowance`, the improved planner's), it does not leave more
   objects of a kind short of reachable faces than the target needs (see there), nor push one
-  that stays short of a face against the push of the face the arm cannot reach (`_retreats`);
+  that stays short of a face against the push of the face the arm cannot reach
+  (`keeps_face_rule`);
 * the robot has not refused it before moving from (nearly) this state (`refuse`: the closed
   loop marks such pushes, so that a replan does not send the same push again).
 Push geometry (contact point, direction, approach clearance) comes from the executor's
-tsrrt_executor.push_primitives so that planner and executor agree on it.
+tsrrt_executor.push_primitives so that planner and executor agree on it. All but the refusals
+are checked in one compiled pass (`pushes_valid_compiled`), reach looked up on a grid
+(reachability.py).
 
 An object that no push can reach where it stands (`out_of_reach`) needs no models: nothing
 can be planned with it, and it stays where it is, as an obstacle the objective still counts.
@@ -67,7 +70,6 @@ from tsrrt_planner.reachability import (
     points_reached,
     rasterised,
     segment_reached,
-    segments_reached,
 )
 
 MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fitted at 0.05
@@ -554,14 +556,6 @@ class PlanningProblem:
         return np.array([keeps_face_rule(int(o), np.asarray(b, float), np.asarray(f, float),
                                          stranded, faces, reach, retreat_limit)
                          for o, b, f in zip(objects, before, final, strict=True)], bool)
-
-    def path_reachable(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
-        """(k,) True when the arm reaches every point of the ball paths start-end (k, 2),
-        each sampled evenly at most REACH_SPACING apart as the executor checks it (the reachable
-        region is not convex near the base, so both ends reachable does not make the middle
-        so)."""
-        return segments_reached(np.asarray(start, float), np.asarray(end, float),
-                                REACH_SPACING, *self.reach_cells)
 
     def state_valid(self, state: np.ndarray) -> bool:
         return self.checker.state_valid(state)

@@ -8,9 +8,11 @@ close and the elbow folds into the base, too far and the arm is stretched flat; 
 guess, not a computed workspace (the real near limit is not a circle: x >= 0.33 m straight
 ahead, x >= 0.25 m at |y| = 0.2 m).
 
-A reach model that is a grid of cells (`GridReachability`, as the executor's is) is looked up by
-compiled loops (`faces_reached`, `segments_reached`): the planner asks about a few dozen points
-at a time, thousands of times a second, and numpy's per-call overhead was most of the cost.
+The planner looks reach up on a grid of cells in compiled loops (`faces_reached`,
+`segments_reached`): it asks about a few dozen points at a time, thousands of times a second, and
+numpy's per-call overhead was most of the cost. A reach model that is such a grid
+(`GridReachability`, as the executor's is) gives its cells; any other is sampled onto one
+(`rasterised`).
 """
 
 from __future__ import annotations
