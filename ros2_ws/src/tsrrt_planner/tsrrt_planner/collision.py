@@ -81,21 +81,26 @@ def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy:
 
 
 @kernel
+def _footprint_distance(ax: float, ay: float, at: float, ahx: float, ahy: float, disc_a: bool,
+                        bx: float, by: float, bt: float, bhx: float, bhy: float, disc_b: bool
+                        ) -> float:
+    """footprint_signed_distance on scalars: the inner loops pass no array views."""
+    if disc_a and disc_b:
+        return math.hypot(ax - bx, ay - by) - ahx - bhx
+    if disc_b:
+        return _box_disc(ax, ay, at, ahx, ahy, bx, by, bhx)
+    if disc_a:
+        return _box_disc(bx, by, bt, bhx, bhy, ax, ay, ahx)
+    return _box_box(ax, ay, at, ahx, ahy, bx, by, bt, bhx, bhy)
+
+
+@kernel
 def footprint_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, disc_a: bool,
                               pose_b: np.ndarray, half_b: np.ndarray, disc_b: bool) -> float:
     """Signed distance between footprints at poses (3,) with half sizes (2,) (a disc's radius
     is half[0])."""
-    if disc_a and disc_b:
-        return (math.hypot(pose_a[0] - pose_b[0], pose_a[1] - pose_b[1])
-                - half_a[0] - half_b[0])
-    if disc_b:
-        return _box_disc(pose_a[0], pose_a[1], pose_a[2], half_a[0], half_a[1],
-                         pose_b[0], pose_b[1], half_b[0])
-    if disc_a:
-        return _box_disc(pose_b[0], pose_b[1], pose_b[2], half_b[0], half_b[1],
-                         pose_a[0], pose_a[1], half_a[0])
-    return _box_box(pose_a[0], pose_a[1], pose_a[2], half_a[0], half_a[1],
-                    pose_b[0], pose_b[1], pose_b[2], half_b[0], half_b[1])
+    return _footprint_distance(pose_a[0], pose_a[1], pose_a[2], half_a[0], half_a[1], disc_a,
+                               pose_b[0], pose_b[1], pose_b[2], half_b[0], half_b[1], disc_b)
 
 
 @kernel
@@ -156,33 +161,38 @@ def _pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
 
 
 @kernel
-def _pose_clear(obj: int, pose: np.ndarray, parent: np.ndarray, half: np.ndarray,
-                is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
-                pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
-                bounds: np.ndarray, table_allowance: np.ndarray) -> bool:
-    """Object `obj` at `pose`, the others as in `parent`: on the table and clear of all."""
+def _pose_clear(obj: int, x: float, y: float, theta: float, parent: np.ndarray,
+                half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
+                obstacle_poses: np.ndarray, pair_allowance: np.ndarray,
+                obstacle_allowance: np.ndarray, margin: float, bounds: np.ndarray,
+                table_allowance: np.ndarray) -> bool:
+    """Object `obj` at (x, y, theta), the others as in `parent`: on the table and clear of
+    all."""
     if is_disc[obj]:
         hx = hy = half[obj, 0]
     else:
-        c, s = abs(math.cos(pose[2])), abs(math.sin(pose[2]))
+        c, s = abs(math.cos(theta)), abs(math.sin(theta))
         hx, hy = c * half[obj, 0] + s * half[obj, 1], s * half[obj, 0] + c * half[obj, 1]
-    allowance = table_allowance[obj]
-    if (pose[0] - hx - bounds[0] + allowance[0] < 0.0
-            or bounds[2] - pose[0] - hx + allowance[1] < 0.0
-            or pose[1] - hy - bounds[1] + allowance[2] < 0.0
-            or bounds[3] - pose[1] - hy + allowance[3] < 0.0):
+    if (x - hx - bounds[0] + table_allowance[obj, 0] < 0.0
+            or bounds[2] - x - hx + table_allowance[obj, 1] < 0.0
+            or y - hy - bounds[1] + table_allowance[obj, 2] < 0.0
+            or bounds[3] - y - hy + table_allowance[obj, 3] < 0.0):
         return False
     n = len(parent)
     for row in range(n + len(obstacle_poses)):
         if row == obj:
             continue
-        other = parent[row] if row < n else obstacle_poses[row - n]
+        if row < n:
+            ox, oy, ot = parent[row, 0], parent[row, 1], parent[row, 2]
+        else:
+            ox, oy = obstacle_poses[row - n, 0], obstacle_poses[row - n, 1]
+            ot = obstacle_poses[row - n, 2]
         reach = bounding[obj] + bounding[row] + margin
-        if (pose[0] - other[0]) ** 2 + (pose[1] - other[1]) ** 2 > reach * reach:
+        if (x - ox) ** 2 + (y - oy) ** 2 > reach * reach:
             continue
         allowed = pair_allowance[obj, row] if row < n else obstacle_allowance[obj, row - n]
-        if footprint_signed_distance(pose, half[obj], is_disc[obj], other, half[row],
-                                     is_disc[row]) < margin - allowed:
+        if _footprint_distance(x, y, theta, half[obj, 0], half[obj, 1], is_disc[obj], ox, oy,
+                               ot, half[row, 0], half[row, 1], is_disc[row]) < margin - allowed:
             return False
     return True
 
@@ -196,13 +206,12 @@ def swept_pose_clear(obj: int, before: np.ndarray, change: np.ndarray, steps: in
     """Object `obj` is clear at before + (j / steps) change (3,) for every j = 1..steps (the
     last is the end pose), the others as in `parent`."""
     count = max(steps, 1)
-    pose = np.empty(3)
     for j in range(count, 0, -1):          # the end pose first: it fails most often
         fraction = j / count
-        for d in range(3):
-            pose[d] = before[d] + fraction * change[d]
-        if not _pose_clear(obj, pose, parent, half, is_disc, bounding, obstacle_poses,
-                           pair_allowance, obstacle_allowance, margin, bounds, table_allowance):
+        if not _pose_clear(obj, before[0] + fraction * change[0],
+                           before[1] + fraction * change[1], before[2] + fraction * change[2],
+                           parent, half, is_disc, bounding, obstacle_poses, pair_allowance,
+                           obstacle_allowance, margin, bounds, table_allowance):
             return False
     return True
 
