@@ -264,6 +264,66 @@ def _ball_paths_clear(parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
     return ok
 
 
+@kernel
+def _constraint_rows(first: np.ndarray, second: np.ndarray, tables: tuple) -> np.ndarray:
+    """CollisionChecker's constraints g >= 0: pairs taking their first member from `first`
+    (n, 3) and their second from `second`, then obstacles and table edges from `first`.
+    `tables` is CollisionChecker.constraint_tables()."""
+    pair_first, pair_second, pair_allow, obstacle_object, obstacle_row, obstacle_allow, \
+        half, is_disc, obstacle_poses, margin, bounds, table_allow = tables
+    pairs, obstacles, n = len(pair_first), len(obstacle_object), len(first)
+    values = np.empty(pairs + obstacles + 4 * n)
+    for k in range(pairs):
+        a, b = pair_first[k], pair_second[k]
+        values[k] = (footprint_signed_distance(first[a], half[a], is_disc[a], second[b],
+                                               half[b], is_disc[b]) - margin + pair_allow[k])
+    for k in range(obstacles):
+        a, row = obstacle_object[k], obstacle_row[k]
+        values[pairs + k] = (footprint_signed_distance(first[a], half[a], is_disc[a],
+                                                       obstacle_poses[row - n], half[row],
+                                                       is_disc[row])
+                             - margin + obstacle_allow[k])
+    for i in range(n):
+        if is_disc[i]:
+            hx = hy = half[i, 0]
+        else:
+            c, s = abs(math.cos(first[i, 2])), abs(math.sin(first[i, 2]))
+            hx, hy = c * half[i, 0] + s * half[i, 1], s * half[i, 0] + c * half[i, 1]
+        x, y, row = first[i, 0], first[i, 1], pairs + obstacles + 4 * i
+        values[row] = x - hx - bounds[0] + table_allow[i, 0]
+        values[row + 1] = bounds[2] - x - hx + table_allow[i, 1]
+        values[row + 2] = y - hy - bounds[1] + table_allow[i, 2]
+        values[row + 3] = bounds[3] - y - hy + table_allow[i, 3]
+    return values
+
+
+@kernel
+def _constraint_jacobian(state: np.ndarray, step: float, tables: tuple) -> np.ndarray:
+    """d g / d state (C, 3n) of _constraint_rows by forward differences: each constraint
+    depends on one or two objects, so moving every object at once along one coordinate (first
+    members of pairs only, then second members only) gives all its columns."""
+    pair_first, pair_second, _, obstacle_object = tables[0], tables[1], tables[2], tables[3]
+    pairs, obstacles, n = len(pair_first), len(obstacle_object), len(state)
+    reference = _constraint_rows(state, state, tables)
+    jacobian = np.zeros((len(reference), 3 * n))
+    for d in range(3):
+        shifted = state.copy()
+        shifted[:, d] += step
+        moved_first = _constraint_rows(shifted, state, tables)
+        moved_second = _constraint_rows(state, shifted, tables)
+        for k in range(pairs):
+            jacobian[k, 3 * pair_first[k] + d] = (moved_first[k] - reference[k]) / step
+            jacobian[k, 3 * pair_second[k] + d] = (moved_second[k] - reference[k]) / step
+        for k in range(pairs, pairs + obstacles):
+            jacobian[k, 3 * obstacle_object[k - pairs] + d] = ((moved_first[k] - reference[k])
+                                                               / step)
+        for i in range(n):
+            for j in range(4):
+                k = pairs + obstacles + 4 * i + j
+                jacobian[k, 3 * i + d] = (moved_first[k] - reference[k]) / step
+    return jacobian
+
+
 class Shapes:
     """Footprints of movable objects followed by static obstacles, as flat arrays.
 
@@ -329,6 +389,7 @@ class CollisionChecker:
         no_rows = np.zeros(0, np.int64)
         self.moved_objects_valid(np.zeros((n, 3)), no_rows, np.zeros((0, 3)))
         self.shapes.pair_signed_distance(no_rows, np.zeros((0, 3)), no_rows, np.zeros((0, 3)))
+        self.constraint_jacobian(np.zeros((n, 3)))
 
     def tolerate(self, state: np.ndarray) -> tuple[float, float]:
         """Accept the violations of `state` (n, 3) but no deeper ones.
@@ -355,66 +416,24 @@ class CollisionChecker:
                 float(self.table_allowance.max(initial=0.0)))
 
     # ------------------------------------------------------------------ constraint vector
-    def table_clearances(self, states: np.ndarray) -> np.ndarray:
-        """Clearances (..., n, 4) of every footprint to x_min, x_max, y_min, y_max (>= 0 valid)."""
-        x_min, y_min, x_max, y_max = self.table_bounds
-        hx, hy, _, _ = axis_aligned_half_extents(states[..., 2], self.objects.half_length,
-                                                 self.objects.half_width, self.objects.is_disc)
-        x, y = states[..., 0], states[..., 1]
-        return np.stack([x - hx - x_min, x_max - x - hx, y - hy - y_min, y_max - y - hy], -1)
+    def constraint_tables(self) -> tuple:
+        """What _constraint_rows needs besides the states; built per call, as `tolerate`
+        replaces the allowances."""
+        return (self.pair_first, self.pair_second,
+                self.pair_allowance[self.pair_first, self.pair_second], self.obstacle_object,
+                self.obstacle_row, self.obstacle_allowance.ravel(), self.shapes.half,
+                self.shapes.is_disc, self.shapes.obstacle_poses, self.margin, self._bounds,
+                self.table_allowance)
 
     def constraint_values(self, state: np.ndarray) -> np.ndarray:
-        """All constraints g(state) >= 0 of one state (n, 3): pairs, obstacles, table edges."""
-        return self._constraints(state[None], state[None])[0]
-
-    def _constraints(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
-        """Constraints (B, C) where pair constraints take their first member from states
-        first (B, n, 3) and their second from second (B, n, 3); obstacle and table constraints
-        use `first`. Batched so that one call serves a whole Jacobian."""
-        batch = len(first)
-        parts = []
-        if len(self.pair_first):
-            rows_a = np.tile(self.pair_first, batch)
-            rows_b = np.tile(self.pair_second, batch)
-            poses_a = first[:, self.pair_first].reshape(-1, 3)
-            poses_b = second[:, self.pair_second].reshape(-1, 3)
-            parts.append(self.shapes.pair_signed_distance(rows_a, poses_a, rows_b, poses_b)
-                         .reshape(batch, -1) - self.margin
-                         + self.pair_allowance[self.pair_first, self.pair_second])
-        if self.m:
-            rows_o = np.tile(self.obstacle_row, batch)
-            parts.append(self.shapes.pair_signed_distance(
-                np.tile(self.obstacle_object, batch),
-                first[:, self.obstacle_object].reshape(-1, 3), rows_o,
-                self.shapes.obstacle_poses[rows_o - self.n]).reshape(batch, -1) - self.margin
-                + self.obstacle_allowance.ravel())
-        parts.append((self.table_clearances(first) + self.table_allowance).reshape(batch, -1))
-        return np.concatenate(parts, axis=1)
+        """All constraints g(state) >= 0 of one state (n, 3): pairs, obstacles, table edges.
+        Compiled, as is the Jacobian: DIRECTGD's SLSQP asks for both at every iteration."""
+        state = _floats(state)
+        return _constraint_rows(state, state, self.constraint_tables())
 
     def constraint_jacobian(self, state: np.ndarray, step: float = 1e-6) -> np.ndarray:
-        """d g / d state (C, 3n) by forward differences. Each constraint depends on one or two
-        objects, so moving every object at once along one coordinate - first members of pairs
-        only, then second members only - gives all columns from seven batched evaluations."""
-        n = self.n
-        n_pairs, n_obst = len(self.pair_first), len(self.obstacle_object)
-        shifted = np.repeat(state[None], 3, axis=0)
-        shifted[np.arange(3), :, np.arange(3)] += step
-        base = np.repeat(state[None], 3, axis=0)
-        values = self._constraints(np.concatenate([state[None], shifted, base]),
-                                   np.concatenate([state[None], base, shifted]))
-        reference = values[0]
-        moved_first = (values[1:4] - reference) / step   # (3, C)
-        moved_second = (values[4:7] - reference) / step
-        jacobian = np.zeros((len(reference), 3 * n))
-        rows = np.arange(n_pairs)
-        for d in range(3):
-            jacobian[rows, 3 * self.pair_first + d] = moved_first[d, rows]
-            jacobian[rows, 3 * self.pair_second + d] = moved_second[d, rows]
-            other = np.arange(n_pairs, n_pairs + n_obst)
-            jacobian[other, 3 * self.obstacle_object + d] = moved_first[d, other]
-            table = np.arange(n_pairs + n_obst, n_pairs + n_obst + 4 * n)
-            jacobian[table, 3 * np.repeat(np.arange(n), 4) + d] = moved_first[d, table]
-        return jacobian
+        """d g / d state (C, 3n) by forward differences (_constraint_jacobian)."""
+        return _constraint_jacobian(_floats(state), step, self.constraint_tables())
 
     # ------------------------------------------------------------------ validity
     def state_valid(self, state: np.ndarray) -> bool:

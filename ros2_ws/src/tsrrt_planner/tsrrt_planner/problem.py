@@ -106,11 +106,11 @@ def shortest_turn(delta_theta: np.ndarray, period: np.ndarray) -> np.ndarray:
 
 
 @kernel
-def _push_geometry(before: np.ndarray, rates: np.ndarray, contact: np.ndarray,
-                   direction: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                   lengths: np.ndarray, half_length: np.ndarray, max_substep: float,
-                   ball_radius: float, approach_clearance: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def batch_push_geometry(before: np.ndarray, rates: np.ndarray, contact: np.ndarray,
+                        direction: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                        lengths: np.ndarray, half_length: np.ndarray, max_substep: float,
+                        ball_radius: float, approach_clearance: float
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For pushes (k,) of objects at poses `before` (k, 3): the pose change (k, 3), how many
     poses along the way to check (one per max_substep of travel, a box's turn counted as the
     arc of its ends) and the ball's approach and end points (k, 2), as the executor moves it.
@@ -444,8 +444,8 @@ class PlanningProblem:
         return refused
 
     def geometry_tables(self) -> tuple:
-        """What _push_geometry needs besides the pushes, then the longest push per object and
-        the shortest push, for compiled searches (rearrange.object_path)."""
+        """What batch_push_geometry needs besides the pushes, then the longest push per object
+        and the shortest push, for compiled searches (rearrange.object_path)."""
         return (self.rates, self.contact, self.direction, self.objects.half_length,
                 self.max_substep, BALL_RADIUS, APPROACH_CLEARANCE, self.max_lengths,
                 self.min_length)
@@ -503,12 +503,12 @@ class PlanningProblem:
 
     def _geometry(self, before: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                   lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """_push_geometry for pushes of objects (k,) from poses `before` (k, 3)."""
-        return _push_geometry(np.asarray(before, float), self.rates, self.contact,
-                              self.direction, np.asarray(objects, np.int64),
-                              np.asarray(primitives, np.int64), np.asarray(lengths, float),
-                              self.objects.half_length, self.max_substep, BALL_RADIUS,
-                              APPROACH_CLEARANCE)
+        """batch_push_geometry for pushes of objects (k,) from poses `before` (k, 3)."""
+        return batch_push_geometry(np.asarray(before, float), self.rates, self.contact,
+                                   self.direction, np.asarray(objects, np.int64),
+                                   np.asarray(primitives, np.int64), np.asarray(lengths, float),
+                                   self.objects.half_length, self.max_substep, BALL_RADIUS,
+                                   APPROACH_CLEARANCE)
 
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start

@@ -34,7 +34,7 @@ import numpy as np
 from tsrrt_planner.collision import kernel
 from tsrrt_planner.problem import (
     PlanningProblem,
-    _push_geometry,
+    batch_push_geometry,
     pushes_valid_compiled,
     refused_pushes,
     shortest_turn,
@@ -193,7 +193,7 @@ def _object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: float,
             continue
         objects = np.full(len(tried), index)
         before = expanded[rows[tried]]
-        change, steps, start, end = _push_geometry(
+        change, steps, start, end = batch_push_geometry(
             before, rates, contact, direction, objects, kind[tried], length[tried],
             half_length, max_substep, ball_radius, clearance)
         ok = ((length[tried] <= longest + 1e-9)
