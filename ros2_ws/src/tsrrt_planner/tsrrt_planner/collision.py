@@ -58,7 +58,15 @@ def _corners_to_box(x: float, y: float, c: float, s: float, hx: float, hy: float
 @kernel
 def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
              bx: float, by: float, bt: float, bhx: float, bhy: float) -> float:
-    ac, as_, bc, bs = math.cos(at), math.sin(at), math.cos(bt), math.sin(bt)
+    return _box_box_turned(ax, ay, math.cos(at), math.sin(at), ahx, ahy,
+                           bx, by, math.cos(bt), math.sin(bt), bhx, bhy)
+
+
+@kernel
+def _box_box_turned(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
+                    bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float
+                    ) -> float:
+    """_box_box with the headings given by their cosines and sines."""
     dx, dy = bx - ax, by - ay
     # Relative rotation: the projections of one box's axes on the other's.
     cc, cs = abs(ac * bc + as_ * bs), abs(ac * bs - as_ * bc)
@@ -75,23 +83,30 @@ def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
 @kernel
 def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy: float,
               radius: float) -> float:
-    c, s = math.cos(t), math.sin(t)
+    return _box_disc_turned(x, y, math.cos(t), math.sin(t), hx, hy, cx, cy, radius)
+
+
+@kernel
+def _box_disc_turned(x: float, y: float, c: float, s: float, hx: float, hy: float, cx: float,
+                     cy: float, radius: float) -> float:
+    """_box_disc with the box's heading given by its cosine and sine."""
     dx, dy = cx - x, cy - y
     return _point_box(dx * c + dy * s, -dx * s + dy * c, hx, hy) - radius
 
 
 @kernel
-def _footprint_distance(ax: float, ay: float, at: float, ahx: float, ahy: float, disc_a: bool,
-                        bx: float, by: float, bt: float, bhx: float, bhy: float, disc_b: bool
-                        ) -> float:
-    """footprint_signed_distance on scalars: the inner loops pass no array views."""
+def _footprint_distance(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
+                        disc_a: bool, bx: float, by: float, bc: float, bs: float, bhx: float,
+                        bhy: float, disc_b: bool) -> float:
+    """footprint_signed_distance on scalars, headings as cosines and sines: the pose checks
+    pass no array views and turn each heading once."""
     if disc_a and disc_b:
         return math.hypot(ax - bx, ay - by) - ahx - bhx
     if disc_b:
-        return _box_disc(ax, ay, at, ahx, ahy, bx, by, bhx)
+        return _box_disc_turned(ax, ay, ac, as_, ahx, ahy, bx, by, bhx)
     if disc_a:
-        return _box_disc(bx, by, bt, bhx, bhy, ax, ay, ahx)
-    return _box_box(ax, ay, at, ahx, ahy, bx, by, bt, bhx, bhy)
+        return _box_disc_turned(bx, by, bc, bs, bhx, bhy, ax, ay, ahx)
+    return _box_box_turned(ax, ay, ac, as_, ahx, ahy, bx, by, bc, bs, bhx, bhy)
 
 
 @kernel
@@ -99,8 +114,10 @@ def footprint_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, disc_a: bo
                               pose_b: np.ndarray, half_b: np.ndarray, disc_b: bool) -> float:
     """Signed distance between footprints at poses (3,) with half sizes (2,) (a disc's radius
     is half[0])."""
-    return _footprint_distance(pose_a[0], pose_a[1], pose_a[2], half_a[0], half_a[1], disc_a,
-                               pose_b[0], pose_b[1], pose_b[2], half_b[0], half_b[1], disc_b)
+    return _footprint_distance(pose_a[0], pose_a[1], math.cos(pose_a[2]), math.sin(pose_a[2]),
+                               half_a[0], half_a[1], disc_a, pose_b[0], pose_b[1],
+                               math.cos(pose_b[2]), math.sin(pose_b[2]), half_b[0], half_b[1],
+                               disc_b)
 
 
 @kernel
@@ -120,10 +137,10 @@ def _slab(p: float, d: float, h: float) -> tuple[float, float]:
 
 
 @kernel
-def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float, t: float,
-                 hx: float, hy: float) -> float:
-    """Distance from segment s-e to a box; 0 when they intersect."""
-    c, s = math.cos(t), math.sin(t)
+def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float, c: float,
+                 s: float, hx: float, hy: float) -> float:
+    """Distance from segment s-e to a box (heading as cosine c and sine s); 0 when they
+    intersect."""
     p0x, p0y = (sx - x) * c + (sy - y) * s, -(sx - x) * s + (sy - y) * c
     p1x, p1y = (ex - x) * c + (ey - y) * s, -(ex - x) * s + (ey - y) * c
     dx, dy = p1x - p0x, p1y - p0y
@@ -142,11 +159,17 @@ def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float,
 def segment_footprint_distance(start: np.ndarray, end: np.ndarray, pose: np.ndarray,
                                half: np.ndarray, disc: bool) -> float:
     """Distance from segment start-end (2,) to a footprint; 0 when they intersect."""
+    return _segment_footprint(start[0], start[1], end[0], end[1], pose[0], pose[1],
+                              math.cos(pose[2]), math.sin(pose[2]), half[0], half[1], disc)
+
+
+@kernel
+def _segment_footprint(sx: float, sy: float, ex: float, ey: float, x: float, y: float,
+                       c: float, s: float, hx: float, hy: float, disc: bool) -> float:
+    """segment_footprint_distance on scalars, the heading as cosine c and sine s."""
     if disc:
-        return max(_segment_point(start[0], start[1], end[0], end[1], pose[0], pose[1])
-                   - half[0], 0.0)
-    return _segment_box(start[0], start[1], end[0], end[1], pose[0], pose[1], pose[2],
-                        half[0], half[1])
+        return max(_segment_point(sx, sy, ex, ey, x, y) - hx, 0.0)
+    return _segment_box(sx, sy, ex, ey, x, y, c, s, hx, hy)
 
 
 @kernel
@@ -161,18 +184,30 @@ def _pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
 
 
 @kernel
+def headings(parent: np.ndarray, obstacle_poses: np.ndarray) -> np.ndarray:
+    """(n + m, 2) cosine and sine of the heading of every object of `parent` (n, 3), then of
+    every obstacle: the pose checks turn each neighbour once per batch, not once per test."""
+    turned = np.empty((len(parent) + len(obstacle_poses), 2))
+    for row in range(len(turned)):
+        theta = parent[row, 2] if row < len(parent) else obstacle_poses[row - len(parent), 2]
+        turned[row, 0], turned[row, 1] = math.cos(theta), math.sin(theta)
+    return turned
+
+
+@kernel
 def _pose_clear(obj: int, x: float, y: float, theta: float, parent: np.ndarray,
-                half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
+                turned: np.ndarray, half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
                 obstacle_poses: np.ndarray, pair_allowance: np.ndarray,
                 obstacle_allowance: np.ndarray, margin: float, bounds: np.ndarray,
                 table_allowance: np.ndarray) -> bool:
-    """Object `obj` at (x, y, theta), the others as in `parent`: on the table and clear of
-    all."""
+    """Object `obj` at (x, y, theta), the others as in `parent` (their `headings` in
+    `turned`): on the table and clear of all."""
+    c, s = math.cos(theta), math.sin(theta)
     if is_disc[obj]:
         hx = hy = half[obj, 0]
     else:
-        c, s = abs(math.cos(theta)), abs(math.sin(theta))
-        hx, hy = c * half[obj, 0] + s * half[obj, 1], s * half[obj, 0] + c * half[obj, 1]
+        hx = abs(c) * half[obj, 0] + abs(s) * half[obj, 1]
+        hy = abs(s) * half[obj, 0] + abs(c) * half[obj, 1]
     if (x - hx - bounds[0] + table_allowance[obj, 0] < 0.0
             or bounds[2] - x - hx + table_allowance[obj, 1] < 0.0
             or y - hy - bounds[1] + table_allowance[obj, 2] < 0.0
@@ -183,35 +218,35 @@ def _pose_clear(obj: int, x: float, y: float, theta: float, parent: np.ndarray,
         if row == obj:
             continue
         if row < n:
-            ox, oy, ot = parent[row, 0], parent[row, 1], parent[row, 2]
+            ox, oy = parent[row, 0], parent[row, 1]
         else:
             ox, oy = obstacle_poses[row - n, 0], obstacle_poses[row - n, 1]
-            ot = obstacle_poses[row - n, 2]
         reach = bounding[obj] + bounding[row] + margin
         if (x - ox) ** 2 + (y - oy) ** 2 > reach * reach:
             continue
         allowed = pair_allowance[obj, row] if row < n else obstacle_allowance[obj, row - n]
-        if _footprint_distance(x, y, theta, half[obj, 0], half[obj, 1], is_disc[obj], ox, oy,
-                               ot, half[row, 0], half[row, 1], is_disc[row]) < margin - allowed:
+        if _footprint_distance(x, y, c, s, half[obj, 0], half[obj, 1], is_disc[obj], ox, oy,
+                               turned[row, 0], turned[row, 1], half[row, 0], half[row, 1],
+                               is_disc[row]) < margin - allowed:
             return False
     return True
 
 
 @kernel
 def swept_pose_clear(obj: int, before: np.ndarray, change: np.ndarray, steps: int,
-                     parent: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
-                     bounding: np.ndarray, obstacle_poses: np.ndarray,
+                     parent: np.ndarray, turned: np.ndarray, half: np.ndarray,
+                     is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
                      pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
                      bounds: np.ndarray, table_allowance: np.ndarray) -> bool:
     """Object `obj` is clear at before + (j / steps) change (3,) for every j = 1..steps (the
-    last is the end pose), the others as in `parent`."""
+    last is the end pose), the others as in `parent` (their `headings` in `turned`)."""
     count = max(steps, 1)
     for j in range(count, 0, -1):          # the end pose first: it fails most often
         fraction = j / count
         if not _pose_clear(obj, before[0] + fraction * change[0],
                            before[1] + fraction * change[1], before[2] + fraction * change[2],
-                           parent, half, is_disc, bounding, obstacle_poses, pair_allowance,
-                           obstacle_allowance, margin, bounds, table_allowance):
+                           parent, turned, half, is_disc, bounding, obstacle_poses,
+                           pair_allowance, obstacle_allowance, margin, bounds, table_allowance):
             return False
     return True
 
@@ -224,9 +259,10 @@ def _swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray
                        margin: float, bounds: np.ndarray, table_allowance: np.ndarray
                        ) -> np.ndarray:
     """(k,) swept_pose_clear of each moved[i] from before[i] by change[i] in steps[i]."""
+    turned = headings(parent, obstacle_poses)
     ok = np.ones(len(moved), np.bool_)
     for i in range(len(moved)):
-        ok[i] = swept_pose_clear(moved[i], before[i], change[i], steps[i], parent, half,
+        ok[i] = swept_pose_clear(moved[i], before[i], change[i], steps[i], parent, turned, half,
                                  is_disc, bounding, obstacle_poses, pair_allowance,
                                  obstacle_allowance, margin, bounds, table_allowance)
     return ok
@@ -234,20 +270,25 @@ def _swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray
 
 @kernel
 def ball_path_clear(pushed: int, start: np.ndarray, end: np.ndarray, parent: np.ndarray,
-                    half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
-                    obstacle_poses: np.ndarray, clearance: float) -> bool:
+                    turned: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                    bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float) -> bool:
     """The ball's path start-end (2,) keeps `clearance` from every object but `pushed` and
-    from the obstacles."""
+    from the obstacles (their `headings` in `turned`)."""
     n = len(parent)
     for row in range(n + len(obstacle_poses)):
         if row == pushed:
             continue
-        other = parent[row] if row < n else obstacle_poses[row - n]
+        if row < n:
+            ox, oy = parent[row, 0], parent[row, 1]
+        else:
+            ox, oy = obstacle_poses[row - n, 0], obstacle_poses[row - n, 1]
         # a segment farther from a centre than the bounding circle plus clearance is clear
-        if (_segment_point(start[0], start[1], end[0], end[1], other[0], other[1])
+        if (_segment_point(start[0], start[1], end[0], end[1], ox, oy)
                 > bounding[row] + clearance):
             continue
-        if segment_footprint_distance(start, end, other, half[row], is_disc[row]) < clearance:
+        if _segment_footprint(start[0], start[1], end[0], end[1], ox, oy, turned[row, 0],
+                              turned[row, 1], half[row, 0], half[row, 1],
+                              is_disc[row]) < clearance:
             return False
     return True
 
@@ -257,10 +298,11 @@ def _ball_paths_clear(parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
                       end: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
                       bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float
                       ) -> np.ndarray:
+    turned = headings(parent, obstacle_poses)
     ok = np.ones(len(pushed), np.bool_)
     for i in range(len(pushed)):
-        ok[i] = ball_path_clear(pushed[i], start[i], end[i], parent, half, is_disc, bounding,
-                                obstacle_poses, clearance)
+        ok[i] = ball_path_clear(pushed[i], start[i], end[i], parent, turned, half, is_disc,
+                                bounding, obstacle_poses, clearance)
     return ok
 
 
@@ -462,9 +504,9 @@ class CollisionChecker:
             np.asarray(steps, np.int64), *self.pose_tables())
 
     def pose_tables(self) -> tuple:
-        """The arrays swept_pose_clear takes after `parent` (shapes, allowances, margin,
-        bounds), for compiled checks elsewhere; built per call, as `tolerate` replaces the
-        allowances."""
+        """The arrays swept_pose_clear takes after `parent` and `turned` (shapes, allowances,
+        margin, bounds), for compiled checks elsewhere; built per call, as `tolerate` replaces
+        the allowances."""
         return (self.shapes.half, self.shapes.is_disc, self.shapes.bounding_radius,
                 self.shapes.obstacle_poses, self.pair_allowance, self.obstacle_allowance,
                 self.margin, self._bounds, self.table_allowance)

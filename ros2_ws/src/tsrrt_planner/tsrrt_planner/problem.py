@@ -55,6 +55,7 @@ from tsrrt_executor.reachability import default_map
 from tsrrt_planner.collision import (
     CollisionChecker,
     ball_path_clear,
+    headings,
     kernel,
     swept_pose_clear,
 )
@@ -258,14 +259,15 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.nda
         = collision
     x0, y0, step, cells = reach
     stranded = stranded_objects(state, faces, reach) if face_rule else np.zeros(0, np.bool_)
+    turned = headings(state, obstacles)
     final = np.empty(3)
     for i in range(len(objects)):
         if not ok[i]:
             continue
         o = objects[i]
-        if not swept_pose_clear(o, before[i], change[i], steps[i], state, half, is_disc,
-                                bounding, obstacles, pair_allow, obstacle_allow, margin, bounds,
-                                table_allow):
+        if not swept_pose_clear(o, before[i], change[i], steps[i], state, turned, half,
+                                is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin,
+                                bounds, table_allow):
             ok[i] = False
             continue
         if face_rule:
@@ -275,8 +277,8 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.nda
                 ok[i] = False
                 continue
         ok[i] = (segment_reached(start[i], end[i], reach_spacing, x0, y0, step, cells)
-                 and ball_path_clear(o, start[i], end[i], state, half, is_disc, bounding,
-                                     obstacles, ball_clearance))
+                 and ball_path_clear(o, start[i], end[i], state, turned, half, is_disc,
+                                     bounding, obstacles, ball_clearance))
     return ok
 
 
