@@ -7,7 +7,8 @@ import pytest
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import ObjectSpec, load_scenario
-from tsrrt_planner.collision import CollisionChecker, Shapes, segment_footprint_distance
+from tsrrt_planner.collision import CollisionChecker, Shapes
+from tsrrt_planner.kernels import segment_footprint_distance
 from tsrrt_planner.objectives import ObjectSet
 
 SPACING = 0.0005

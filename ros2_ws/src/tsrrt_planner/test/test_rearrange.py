@@ -7,15 +7,14 @@ import pytest
 
 from tsrrt_common.scenario import load_scenario
 from tsrrt_executor.reachability import default_map
+from tsrrt_planner.kernels import expand_pushes, points_reached, pose_key, segments_reached
 from tsrrt_planner.lower_bound import lower_bound
 from tsrrt_planner.problem import REACH_SPACING, PlanningProblem
 from tsrrt_planner.push_rule import learn_all
-from tsrrt_planner.reachability import AnnulusReachability, points_reached, segments_reached
+from tsrrt_planner.reachability import AnnulusReachability
 from tsrrt_planner.rearrange import (
     FIXED_LENGTHS,
     STEER_FRACTIONS,
-    _expand,
-    _pose_key,
     approach_blockers,
     blockers_of,
     clear_of_way,
@@ -105,7 +104,7 @@ def test_a_reach_model_without_a_grid_is_rasterised_conservatively(problem):
 
 def test_expansion_agrees_with_the_forward_model_and_steers_closest(problem):
     """The A*'s compiled expansion: its poses are the forward model's, its errors
-    object_error's, its keys _pose_key's, and its closed-form length brings the object closest to
+    object_error's, its keys pose_key's, and its closed-form length brings the object closest to
     the goal among all lengths up to the longest push."""
     rng = np.random.default_rng(11)
     index = problem.objects.ids.index("platter_1")
@@ -116,7 +115,7 @@ def test_expansion_agrees_with_the_forward_model_and_steers_closest(problem):
     primitives = problem.action_primitives[problem.action_objects == index]
     longest = float(problem.max_lengths[index])
     detours = np.unique(np.minimum(FIXED_LENGTHS, longest))
-    rows, kinds, lengths, new, errors, keys = _expand(
+    rows, kinds, lengths, new, errors, keys = expand_pushes(
         poses, problem.rates[index], primitives, goal, weight, problem.angle_period[index],
         longest, problem.min_length, STEER_FRACTIONS, detours)
     assert len(rows) > 0 and (lengths >= problem.min_length).all()
@@ -126,7 +125,7 @@ def test_expansion_agrees_with_the_forward_model_and_steers_closest(problem):
                                                     poses[rows]), atol=1e-12)
     np.testing.assert_allclose(errors, object_error(problem, index, new, goal, weight),
                                atol=1e-12)
-    assert keys.tolist() == [_pose_key(*pose, weight, problem.angle_period[index])
+    assert keys.tolist() == [pose_key(*pose, weight, problem.angle_period[index])
                              for pose in new]
     grid = np.linspace(0.0, longest, 401)
     for row in range(len(poses)):

@@ -67,8 +67,8 @@ from tsrrt_executor.push_primitives import (
     primitives_for,
     push_geometry,
 )
-from tsrrt_planner.collision import footprint_signed_distance
 from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.kernels import footprint_signed_distance
 from tsrrt_planner.lower_bound import relative_gap
 from tsrrt_planner.model_learning import (
     MIRROR_PARTNER,

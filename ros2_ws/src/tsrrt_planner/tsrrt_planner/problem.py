@@ -25,7 +25,7 @@ A push is valid when (all checked in `pushes_valid`, vectorised over candidates)
   loop marks such pushes, so that a replan does not send the same push again).
 Push geometry (contact point, direction, approach clearance) comes from the executor's
 tsrrt_executor.push_primitives so that planner and executor agree on it. All but the refusals
-are checked in one compiled pass (`pushes_valid_compiled`), reach looked up on a grid
+are checked in one compiled pass (`kernels.pushes_valid_compiled`), reach looked up on a grid
 (reachability.py).
 
 An object that no push can reach where it stands (`out_of_reach`) needs no models: nothing
@@ -52,26 +52,21 @@ from tsrrt_executor.push_primitives import (
     push_geometry,
 )
 from tsrrt_executor.reachability import default_map
-from tsrrt_planner.collision import (
-    CollisionChecker,
-    ball_path_clear,
-    headings,
-    kernel,
-    swept_pose_clear,
-)
+from tsrrt_planner.collision import CollisionChecker
 from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.kernels import (
+    REFUSED_RADIUS,
+    batch_push_geometry,
+    faces_reached,
+    keeps_face_rule,
+    points_reached,
+    pushes_valid_compiled,
+    refused_pushes,
+    stranded_objects,
+)
 from tsrrt_planner.model_learning import MIN_PUSH_LENGTH, ModelStore
 from tsrrt_planner.objectives import Objective, ObjectSet, build_objective
-from tsrrt_planner.reachability import (
-    GridReachability,
-    Reachability,
-    approach_reached,
-    faces_reached,
-    faces_reached_at,
-    points_reached,
-    rasterised,
-    segment_reached,
-)
+from tsrrt_planner.reachability import GridReachability, Reachability, rasterised
 
 MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fitted at 0.05
 # An object whose translation pushes at the learned length scatter less than this (std of the
@@ -82,12 +77,6 @@ REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_execu
 # Metres an object short of a face may move against the push of its unreachable face (model
 # drift of a sideways push: about 1 mm in 3 cm): further, only that face could undo the move.
 STRANDED_RETREAT = 0.001
-# A refused push stays refused from states this close to the one it was refused in (every object
-# within REFUSED_RADIUS metres, the pushed one also within REFUSED_TURN radians): observations of a
-# still scene differ by well under a millimetre, and a plan that moved anything by more may have
-# cleared the way.
-REFUSED_RADIUS = 0.003
-REFUSED_TURN = math.radians(2.0)
 
 
 def _to_world(c: np.ndarray, s: np.ndarray, local: np.ndarray) -> np.ndarray:
@@ -104,41 +93,6 @@ def shortest_turn(delta_theta: np.ndarray, period: np.ndarray) -> np.ndarray:
     a period of 0, a disc's, turns by nothing)."""
     safe = np.where(period > 0, period, 1.0)
     return np.where(period > 0, (delta_theta + safe / 2) % safe - safe / 2, 0.0)
-
-
-@kernel
-def batch_push_geometry(before: np.ndarray, rates: np.ndarray, contact: np.ndarray,
-                        direction: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                        lengths: np.ndarray, half_length: np.ndarray, max_substep: float,
-                        ball_radius: float, approach_clearance: float
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For pushes (k,) of objects at poses `before` (k, 3): the pose change (k, 3), how many
-    poses along the way to check (one per max_substep of travel, a box's turn counted as the
-    arc of its ends) and the ball's approach and end points (k, 2), as the executor moves it.
-    One compiled pass: the planner checks a few dozen pushes at a time, thousands of times a
-    second."""
-    k = len(objects)
-    change = np.empty((k, 3))
-    steps = np.empty(k, np.int64)
-    start = np.empty((k, 2))
-    end = np.empty((k, 2))
-    for i in range(k):
-        obj, slot, length = objects[i], primitives[i] - 1, lengths[i]
-        c, s = math.cos(before[i, 2]), math.sin(before[i, 2])
-        rx, ry = rates[obj, slot, 0], rates[obj, slot, 1]
-        ux, uy, ut = c * rx - s * ry, s * rx + c * ry, rates[obj, slot, 2]
-        change[i, 0], change[i, 1], change[i, 2] = length * ux, length * uy, length * ut
-        travel = length * max(math.sqrt(ux * ux + uy * uy), abs(ut) * half_length[obj])
-        steps[i] = math.ceil(travel / max_substep)
-        cx, cy = contact[obj, slot, 0], contact[obj, slot, 1]
-        dx, dy = direction[obj, slot, 0], direction[obj, slot, 1]
-        wdx, wdy = c * dx - s * dy, s * dx + c * dy
-        touch_x = before[i, 0] + (c * cx - s * cy) - ball_radius * wdx
-        touch_y = before[i, 1] + (s * cx + c * cy) - ball_radius * wdy
-        start[i, 0] = touch_x - approach_clearance * wdx
-        start[i, 1] = touch_y - approach_clearance * wdy
-        end[i, 0], end[i, 1] = touch_x + length * wdx, touch_y + length * wdy
-    return change, steps, start, end
 
 
 def push_in_reach(spec: ObjectSpec, pose: Pose2D, primitive: int, reachability: Reachability,
@@ -175,111 +129,6 @@ def longest_push(models: ModelStore, spec: ObjectSpec) -> float:
         consistent = side <= CONSISTENT_SIDE_STD and std[2] <= CONSISTENT_TURN_STD
         lengths.append(MAX_PLANNED_PUSH if consistent else model.push_length)
     return min(lengths, default=DEFAULT_PUSH_LENGTH)
-
-
-@kernel
-def refused_pushes(primitives: np.ndarray, before: np.ndarray, refusals: np.ndarray,
-                   period: float) -> np.ndarray:
-    """(k,) True for pushes of one object with `primitives` (k,) from poses `before` (k, 3)
-    that it was refused from (nearly) there: refusals (m, 4) are primitive, x, y, theta
-    (`PlanningProblem.refusals_for`)."""
-    refused = np.zeros(len(primitives), np.bool_)
-    for i in range(len(primitives)):
-        for r in range(len(refusals)):
-            if primitives[i] != refusals[r, 0]:
-                continue
-            turn = before[i, 2] - refusals[r, 3]
-            turn = (turn + period / 2) % period - period / 2 if period > 0 else 0.0
-            if (math.hypot(before[i, 0] - refusals[r, 1], before[i, 1] - refusals[r, 2])
-                    <= REFUSED_RADIUS and abs(turn) <= REFUSED_TURN):
-                refused[i] = True
-                break
-    return refused
-
-
-@kernel
-def stranded_objects(state: np.ndarray, faces: tuple, reach: tuple) -> np.ndarray:
-    """(n,) True for the objects of `state` short of a reachable face; `faces` and `reach` as
-    in PlanningProblem.check_tables()."""
-    offsets, available, _, full, _, _ = faces
-    x0, y0, step, cells = reach
-    stranded = np.empty(len(state), np.bool_)
-    for j in range(len(state)):
-        stranded[j] = faces_reached_at(j, state[j], offsets, available, x0, y0, step,
-                                       cells) < full[j]
-    return stranded
-
-
-@kernel
-def keeps_face_rule(obj: int, before: np.ndarray, final: np.ndarray, stranded: np.ndarray,
-                    faces: tuple, reach: tuple, retreat_limit: float) -> bool:
-    """The face rule (PlanningProblem.with_face_allowance) for moving `obj` from `before` to
-    `final` (3,), `stranded` being stranded_objects of the state it moves in: it may leave its
-    group no more stranded objects than the allowance or than before, and an object short of a
-    face may not move more than `retreat_limit` against the push of a face the arm cannot
-    reach (only that face could undo the move)."""
-    offsets, available, rates, full, group, allowance = faces
-    x0, y0, step, cells = reach
-    faces_before = faces_reached_at(obj, before, offsets, available, x0, y0, step, cells)
-    faces_after = faces_reached_at(obj, final, offsets, available, x0, y0, step, cells)
-    if faces_before < full[obj] and faces_after <= faces_before:
-        c, s = math.cos(before[2]), math.sin(before[2])
-        for f in range(4):
-            if not available[obj, f] or approach_reached(obj, f, before[0], before[1], c, s,
-                                                         offsets, x0, y0, step, cells):
-                continue
-            wx = c * rates[obj, f, 0] - s * rates[obj, f, 1]
-            wy = s * rates[obj, f, 0] + c * rates[obj, f, 1]
-            norm = max(math.sqrt(wx * wx + wy * wy), 1e-12)
-            if (wx * (final[0] - before[0]) + wy * (final[1] - before[1])) / norm < -retreat_limit:
-                return False
-    if faces_after >= faces_before:
-        return True
-    in_group = 0
-    for j in range(len(stranded)):
-        if group[j] == group[obj] and stranded[j]:
-            in_group += 1
-    was = faces_before < full[obj]
-    before_count = in_group - stranded[obj] + was
-    after_count = before_count - was + (faces_after < full[obj])
-    return after_count <= max(allowance[group[obj]], before_count)
-
-
-@kernel
-def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
-                          change: np.ndarray, steps: np.ndarray, start: np.ndarray,
-                          end: np.ndarray, ok: np.ndarray, tables: tuple) -> np.ndarray:
-    """`pushes_valid` in one compiled pass: each push still `ok` (k,) (length and refusals
-    checked) must keep its way clear (swept_pose_clear), keep the face rule if the problem has
-    one (keeps_face_rule), and keep the ball's path in reach and clear of the others.
-    `tables` are PlanningProblem.check_tables(). A numpy version spent about 60 us a call in
-    per-call overhead, most of a REARRANGE search's time."""
-    collision, ball_clearance, reach, reach_spacing, face_rule, faces, retreat_limit = tables
-    half, is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin, bounds, table_allow \
-        = collision
-    x0, y0, step, cells = reach
-    stranded = stranded_objects(state, faces, reach) if face_rule else np.zeros(0, np.bool_)
-    turned = headings(state, obstacles)
-    final = np.empty(3)
-    for i in range(len(objects)):
-        if not ok[i]:
-            continue
-        o = objects[i]
-        if not swept_pose_clear(o, before[i], change[i], steps[i], state, turned, half,
-                                is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin,
-                                bounds, table_allow):
-            ok[i] = False
-            continue
-        if face_rule:
-            for d in range(3):
-                final[d] = before[i, d] + change[i, d]
-            if not keeps_face_rule(o, before[i], final, stranded, faces, reach, retreat_limit):
-                ok[i] = False
-                continue
-        ok[i] = (segment_reached(start[i], end[i], reach_spacing, x0, y0, step, cells)
-                 and ball_path_clear(o, start[i], end[i], state, turned, half, is_disc,
-                                     bounding, obstacles, ball_clearance))
-    return ok
 
 
 class PlanningProblem:

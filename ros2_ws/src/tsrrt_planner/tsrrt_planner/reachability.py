@@ -8,7 +8,7 @@ close and the elbow folds into the base, too far and the arm is stretched flat; 
 guess, not a computed workspace (the real near limit is not a circle: x >= 0.33 m straight
 ahead, x >= 0.25 m at |y| = 0.2 m).
 
-The planner looks reach up on a grid of cells in compiled loops (`faces_reached`,
+The planner looks reach up on a grid of cells in compiled loops (kernels.py: `faces_reached`,
 `segments_reached`): it asks about a few dozen points at a time, thousands of times a second, and
 numpy's per-call overhead was most of the cost. A reach model that is such a grid
 (`GridReachability`, as the executor's is) gives its cells; any other is sampled onto one
@@ -17,13 +17,11 @@ numpy's per-call overhead was most of the cost. A reach model that is such a gri
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from tsrrt_planner.collision import kernel
 from tsrrt_planner.errors import PlannerError
 
 RASTER_STEP = 0.002  # metres: cells of a reach model the planner rasterises (`rasterised`)
@@ -46,87 +44,6 @@ class GridReachability(Reachability, Protocol):
         """(x0, y0, step, cells (rows, cols) bool): (x, y) is reachable iff it lies in the
         grid and cells[floor((y - y0) / step + 1e-9), floor((x - x0) / step + 1e-9)]."""
         ...
-
-
-@kernel
-def _cell_reachable(x: float, y: float, x0: float, y0: float, step: float,
-                    cells: np.ndarray) -> bool:
-    col = math.floor((x - x0) / step + 1e-9)
-    row = math.floor((y - y0) / step + 1e-9)
-    if col < 0 or row < 0 or col >= cells.shape[1] or row >= cells.shape[0]:
-        return False
-    return cells[row, col]
-
-
-@kernel
-def approach_reached(obj: int, face: int, x: float, y: float, c: float, s: float,
-                     offsets: np.ndarray, x0: float, y0: float, step: float,
-                     cells: np.ndarray) -> bool:
-    """Whether the approach point of `face`, offsets[obj, face] (object frame), of object
-    `obj` at (x, y) with heading cosine c and sine s is in reach."""
-    ox, oy = offsets[obj, face, 0], offsets[obj, face, 1]
-    return _cell_reachable(x + (c * ox - s * oy), y + (s * ox + c * oy), x0, y0, step, cells)
-
-
-@kernel
-def faces_reached_at(obj: int, pose: np.ndarray, offsets: np.ndarray, available: np.ndarray,
-                     x0: float, y0: float, step: float, cells: np.ndarray) -> int:
-    """How many faces f of object `obj` at `pose` (3,) are available[obj, f] and have their
-    approach point in reach."""
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    count = 0
-    for f in range(offsets.shape[1]):
-        if available[obj, f] and approach_reached(obj, f, pose[0], pose[1], c, s, offsets,
-                                                  x0, y0, step, cells):
-            count += 1
-    return count
-
-
-@kernel
-def faces_reached(objects: np.ndarray, poses: np.ndarray, offsets: np.ndarray,
-                  available: np.ndarray, x0: float, y0: float, step: float,
-                  cells: np.ndarray) -> np.ndarray:
-    """(k,) faces_reached_at of objects (k,) at poses (k, 3)."""
-    count = np.zeros(len(objects), np.int64)
-    for i in range(len(objects)):
-        count[i] = faces_reached_at(objects[i], poses[i], offsets, available, x0, y0, step,
-                                    cells)
-    return count
-
-
-@kernel
-def segment_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: float, y0: float,
-                    step: float, cells: np.ndarray) -> bool:
-    """Whether every point of the segment start-end (2,), sampled evenly at most `spacing`
-    apart (ends included), is in reach."""
-    dx, dy = end[0] - start[0], end[1] - start[1]
-    count = max(2, math.ceil(math.sqrt(dx * dx + dy * dy) / spacing) + 1)
-    for j in range(count):
-        fraction = j / (count - 1)
-        if not _cell_reachable(start[0] + fraction * dx, start[1] + fraction * dy, x0, y0,
-                               step, cells):
-            return False
-    return True
-
-
-@kernel
-def segments_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: float, y0: float,
-                     step: float, cells: np.ndarray) -> np.ndarray:
-    """(k,) segment_reached of each segment start-end (k, 2)."""
-    ok = np.ones(len(start), np.bool_)
-    for i in range(len(start)):
-        ok[i] = segment_reached(start[i], end[i], spacing, x0, y0, step, cells)
-    return ok
-
-
-@kernel
-def points_reached(points: np.ndarray, x0: float, y0: float, step: float, cells: np.ndarray
-                   ) -> np.ndarray:
-    """(k,) whether each of points (k, 2) is in reach."""
-    reached = np.empty(len(points), np.bool_)
-    for i in range(len(points)):
-        reached[i] = _cell_reachable(points[i, 0], points[i, 1], x0, y0, step, cells)
-    return reached
 
 
 def rasterised(reachability: Reachability, table_bounds: tuple[float, float, float, float],

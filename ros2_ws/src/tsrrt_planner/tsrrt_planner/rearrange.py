@@ -25,24 +25,14 @@ it is applied to, so a path added to the tree is consistent with the models and 
 
 from __future__ import annotations
 
-import heapq
-import math
 from collections.abc import Callable
 
 import numpy as np
 
-from tsrrt_planner.collision import kernel
-from tsrrt_planner.problem import (
-    PlanningProblem,
-    batch_push_geometry,
-    pushes_valid_compiled,
-    refused_pushes,
-    shortest_turn,
-)
+from tsrrt_planner.kernels import search_object_path
+from tsrrt_planner.problem import PlanningProblem, shortest_turn
 
 Push = tuple[int, int, float]  # (object index, primitive, push length)
-PATH_PUSH_COST = 0.01   # metres of remaining error one extra push is worth (weighted A*)
-KEY_RESOLUTION = 0.002  # metres (and weighted radians) of the duplicate-pose grid
 STEER_FRACTIONS = np.array([1.0, 0.5])  # closed-form push length and half of it
 FIXED_LENGTHS = (0.01, 0.03, 0.06, 0.10)  # detour pushes of fixed length
 PARKING_SPREAD = 0.08  # metres: spread of parking poses sampled around the object
@@ -73,167 +63,6 @@ def object_error(problem: PlanningProblem, index: int, poses: np.ndarray, goal: 
     return np.sqrt(delta[:, 0] ** 2 + delta[:, 1] ** 2 + (weight * angle) ** 2)
 
 
-@kernel
-def _pose_key(x: float, y: float, theta: float, weight: float, period: float) -> int:
-    """One integer for a pose's duplicate-pose grid cell (KEY_RESOLUTION), heading reduced
-    modulo the symmetry: 21 bits per axis, far more than a table needs."""
-    kx = round(x / KEY_RESOLUTION)
-    ky = round(y / KEY_RESOLUTION)
-    kt = round(weight * (theta % period if period > 0 else 0.0) / KEY_RESOLUTION)
-    offset = 1 << 20
-    return ((kx + offset) << 42) | ((ky + offset) << 21) | (kt + offset)
-
-
-@kernel
-def _expand(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: np.ndarray,
-            weight: float, period: float, longest: float, shortest: float,
-            fractions: np.ndarray, detours: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The pushes to try on one object from each of `poses` (b, 3): per primitive (its pose
-    change per metre of push, rates[primitive - 1]: x, y in the object frame, theta), the
-    length that brings it closest to `goal` (closed form, the pose being affine in the length)
-    times each of `fractions`, then each of the fixed `detours`; lengths below `shortest` are
-    left out, steering lengths are clipped to [0, longest]. Compiled: the A* asks for a batch
-    of a few poses at a time, far too small for numpy to pay off.
-
-    Returns:
-        rows (k,) into `poses`, primitives (k,), lengths (k,), the poses after the pushes
-        (k, 3), their weighted errors to `goal` (object_error) and duplicate-pose keys
-        (k,) (_pose_key).
-    """
-    per_pose = len(primitives) * (len(fractions) + len(detours))
-    total = len(poses) * per_pose
-    rows = np.empty(total, np.int64)
-    kinds = np.empty(total, np.int64)
-    lengths = np.empty(total)
-    new = np.empty((total, 3))
-    errors = np.empty(total)
-    keys = np.empty(total, np.int64)
-    w2 = weight ** 2
-    k = 0
-    for b in range(len(poses)):
-        x, y, theta = poses[b, 0], poses[b, 1], poses[b, 2]
-        c, s = math.cos(theta), math.sin(theta)
-        ex, ey, et = goal[0] - x, goal[1] - y, goal[2] - theta
-        et = (et + period / 2) % period - period / 2 if period > 0 else 0.0
-        for primitive in primitives:
-            rx, ry, rt = rates[primitive - 1, 0], rates[primitive - 1, 1], rates[primitive - 1, 2]
-            ux, uy = c * rx - s * ry, s * rx + c * ry
-            ideal = ((ux * ex + uy * ey + rt * et * w2)
-                     / max(ux * ux + uy * uy + rt * rt * w2, 1e-12))
-            for m in range(len(fractions) + len(detours)):
-                if m < len(fractions):
-                    length = min(max(ideal * fractions[m], 0.0), longest)
-                else:
-                    length = detours[m - len(fractions)]
-                if length < shortest:
-                    continue
-                nx, ny, nt = x + length * ux, y + length * uy, theta + length * rt
-                dx, dy, dt = goal[0] - nx, goal[1] - ny, goal[2] - nt
-                dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
-                rows[k], kinds[k], lengths[k] = b, primitive, length
-                new[k, 0], new[k, 1], new[k, 2] = nx, ny, nt
-                errors[k] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
-                keys[k] = _pose_key(nx, ny, nt, weight, period)
-                k += 1
-    return rows[:k], kinds[:k], lengths[:k], new[:k], errors[:k], keys[:k]
-
-
-@kernel
-def _object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: float,
-                 period: float, tolerance: float, max_expansions: int, batch: int,
-                 primitives: np.ndarray, fractions: np.ndarray, detours: np.ndarray,
-                 refusals: np.ndarray, geometry: tuple, checks: tuple
-                 ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """object_path's search, compiled whole: each round pops `batch` nodes, expands them
-    (_expand), drops poses already seen and checks the rest (pushes_valid_compiled) in one
-    batch. `geometry` is PlanningProblem.geometry_tables(), `checks` its check_tables().
-
-    Returns:
-        the path's primitives and lengths, and whether it reached the goal.
-    """
-    rates, contact, direction, half_length, max_substep, ball_radius, clearance, \
-        max_lengths, shortest = geometry
-    longest = max_lengths[index]
-    per_pose = len(primitives) * (len(fractions) + len(detours))
-    capacity = 1 + max_expansions * per_pose
-    poses = np.empty((capacity, 3))
-    parents = np.empty(capacity, np.int64)
-    kinds = np.empty(capacity, np.int64)
-    lengths = np.empty(capacity)
-    errors = np.empty(capacity)
-    depths = np.empty(capacity, np.int64)
-    poses[0] = state[index]
-    parents[0], depths[0] = -1, 0
-    dx, dy = goal[0] - poses[0, 0], goal[1] - poses[0, 1]
-    dt = goal[2] - poses[0, 2]
-    dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
-    errors[0] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
-    if errors[0] <= tolerance:
-        return np.zeros(0, np.int64), np.zeros(0), True
-    size, best = 1, 0
-    queue = [(errors[0], 0)]
-    seen = {_pose_key(poses[0, 0], poses[0, 1], poses[0, 2], weight, period)}
-    expansions = 0
-    while len(queue) > 0 and expansions < max_expansions:
-        count = min(batch, len(queue))
-        nodes = np.empty(count, np.int64)
-        for b in range(count):
-            nodes[b] = heapq.heappop(queue)[1]
-        expansions += count
-        expanded = poses[nodes]
-        rows, kind, length, new, error, keys = _expand(
-            expanded, rates[index], primitives, goal, weight, period, longest, shortest,
-            fractions, detours)
-        fresh = np.zeros(len(rows), np.bool_)
-        for k in range(len(rows)):
-            fresh[k] = keys[k] not in seen
-        tried = np.nonzero(fresh)[0]
-        if len(tried) == 0:
-            continue
-        objects = np.full(len(tried), index)
-        before = expanded[rows[tried]]
-        change, steps, start, end = batch_push_geometry(
-            before, rates, contact, direction, objects, kind[tried], length[tried],
-            half_length, max_substep, ball_radius, clearance)
-        ok = ((length[tried] <= longest + 1e-9)
-              & ~refused_pushes(kind[tried], before, refusals, period))
-        valid = tried[pushes_valid_compiled(state, objects, before, change, steps, start, end,
-                                            ok, checks)]
-        for k in valid[np.argsort(error[valid], kind="mergesort")]:
-            if keys[k] in seen:
-                continue
-            seen.add(keys[k])
-            child = size
-            size += 1
-            poses[child] = new[k]
-            parents[child] = nodes[rows[k]]
-            kinds[child], lengths[child], errors[child] = kind[k], length[k], error[k]
-            depths[child] = depths[parents[child]] + 1
-            if errors[child] < errors[best]:
-                best = child
-            if errors[child] <= tolerance:
-                return _trace(parents, kinds, lengths, child) + (True,)
-            heapq.heappush(queue, (errors[child] + PATH_PUSH_COST * depths[child], child))
-    return _trace(parents, kinds, lengths, best) + (False,)
-
-
-@kernel
-def _trace(parents: np.ndarray, kinds: np.ndarray, lengths: np.ndarray, node: int
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Primitives and lengths of the pushes from the root to `node`."""
-    depth, walk = 0, node
-    while walk > 0:
-        depth += 1
-        walk = parents[walk]
-    path_kinds = np.empty(depth, np.int64)
-    path_lengths = np.empty(depth)
-    for d in range(depth - 1, -1, -1):
-        path_kinds[d], path_lengths[d] = kinds[node], lengths[node]
-        node = parents[node]
-    return path_kinds, path_lengths
-
-
 def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: np.ndarray,
                 weight: float, tick: Callable[[], None], tolerance: float = 0.004,
                 max_expansions: int = 48, batch: int = 4) -> tuple[list[Push], bool]:
@@ -251,7 +80,7 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     tick()
     state = np.asarray(state, float)
     longest = float(problem.max_lengths[index])
-    kinds, lengths, reached = _object_path(
+    kinds, lengths, reached = search_object_path(
         state, index, np.asarray(goal, float), weight, float(problem.angle_period[index]),
         tolerance, max_expansions, batch,
         problem.action_primitives[problem.action_objects == index], STEER_FRACTIONS,

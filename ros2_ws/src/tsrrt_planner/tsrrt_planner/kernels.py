@@ -1,0 +1,755 @@
+"""The planner's compiled inner loops (numba), all in one file.
+
+The planner checks a few dozen pushes at a time, thousands of times a second; as numpy arrays
+that cost mostly per-call overhead, so the checks are scalar loops compiled with numba, with early
+exits. The modules that use them (collision.py, reachability.py, problem.py, rearrange.py) wrap
+them; what each computes is documented there.
+
+Why one file: numba's on-disk cache (`cache=True`, in __pycache__, so only a first run compiles)
+is invalidated only when a kernel's own source file changes, and a cached kernel carries the code
+of every kernel it calls (numba's documented limitation: "changes in symbols defined in another
+file are not recognised"). REARRANGE's search calls the push check, which calls the collision and
+reach tests; were they in other files, changing a test would leave the search running the old
+one from the cache. For the same reason the constants the kernels use live here.
+
+Sections: footprint and ball-path collision tests; reach lookups on a grid; push geometry and the
+whole push check; REARRANGE's A* over one object's pose.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+
+import numpy as np
+from numba import njit
+
+kernel = njit(cache=True, nogil=True)
+
+_BIG = 1e9
+_CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
+# A refused push stays refused from states this close to the one it was refused in (every object
+# within REFUSED_RADIUS metres, the pushed one also within REFUSED_TURN radians): observations of a
+# still scene differ by well under a millimetre, and a plan that moved anything by more may have
+# cleared the way.
+REFUSED_RADIUS = 0.003
+REFUSED_TURN = math.radians(2.0)
+PATH_PUSH_COST = 0.01   # metres of remaining error one extra push is worth (weighted A*)
+KEY_RESOLUTION = 0.002  # metres (and weighted radians) of the duplicate-pose grid
+
+
+# ---------------- collision tests (collision.py)
+@kernel
+def _point_box(px: float, py: float, hx: float, hy: float) -> float:
+    """Signed distance of a point, given in a box's frame, to the box (half sizes hx, hy)."""
+    qx, qy = abs(px) - hx, abs(py) - hy
+    ox, oy = max(qx, 0.0), max(qy, 0.0)
+    return math.sqrt(ox * ox + oy * oy) + min(max(qx, qy), 0.0)
+
+
+@kernel
+def _corners_to_box(x: float, y: float, c: float, s: float, hx: float, hy: float,
+                    bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float) -> float:
+    """Smallest signed distance of box (x, y, cos, sin; half sizes)'s corners to box b."""
+    best = _BIG
+    for sx, sy in _CORNER_SIGNS:
+        lx, ly = sx * hx, sy * hy
+        dx, dy = x + c * lx - s * ly - bx, y + s * lx + c * ly - by
+        best = min(best, _point_box(dx * bc + dy * bs, -dx * bs + dy * bc, bhx, bhy))
+    return best
+
+
+@kernel
+def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
+             bx: float, by: float, bt: float, bhx: float, bhy: float) -> float:
+    return _box_box_turned(ax, ay, math.cos(at), math.sin(at), ahx, ahy,
+                           bx, by, math.cos(bt), math.sin(bt), bhx, bhy)
+
+
+@kernel
+def _box_box_turned(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
+                    bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float
+                    ) -> float:
+    """_box_box with the headings given by their cosines and sines."""
+    dx, dy = bx - ax, by - ay
+    # Relative rotation: the projections of one box's axes on the other's.
+    cc, cs = abs(ac * bc + as_ * bs), abs(ac * bs - as_ * bc)
+    separating = max(abs(dx * ac + dy * as_) - ahx - (cc * bhx + cs * bhy),
+                     abs(-dx * as_ + dy * ac) - ahy - (cs * bhx + cc * bhy),
+                     abs(dx * bc + dy * bs) - bhx - (cc * ahx + cs * ahy),
+                     abs(-dx * bs + dy * bc) - bhy - (cs * ahx + cc * ahy))
+    if separating <= 0.0:
+        return separating
+    return min(_corners_to_box(ax, ay, ac, as_, ahx, ahy, bx, by, bc, bs, bhx, bhy),
+               _corners_to_box(bx, by, bc, bs, bhx, bhy, ax, ay, ac, as_, ahx, ahy))
+
+
+@kernel
+def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy: float,
+              radius: float) -> float:
+    return _box_disc_turned(x, y, math.cos(t), math.sin(t), hx, hy, cx, cy, radius)
+
+
+@kernel
+def _box_disc_turned(x: float, y: float, c: float, s: float, hx: float, hy: float, cx: float,
+                     cy: float, radius: float) -> float:
+    """_box_disc with the box's heading given by its cosine and sine."""
+    dx, dy = cx - x, cy - y
+    return _point_box(dx * c + dy * s, -dx * s + dy * c, hx, hy) - radius
+
+
+@kernel
+def _footprint_distance(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
+                        disc_a: bool, bx: float, by: float, bc: float, bs: float, bhx: float,
+                        bhy: float, disc_b: bool) -> float:
+    """footprint_signed_distance on scalars, headings as cosines and sines: the pose checks
+    pass no array views and turn each heading once."""
+    if disc_a and disc_b:
+        return math.hypot(ax - bx, ay - by) - ahx - bhx
+    if disc_b:
+        return _box_disc_turned(ax, ay, ac, as_, ahx, ahy, bx, by, bhx)
+    if disc_a:
+        return _box_disc_turned(bx, by, bc, bs, bhx, bhy, ax, ay, ahx)
+    return _box_box_turned(ax, ay, ac, as_, ahx, ahy, bx, by, bc, bs, bhx, bhy)
+
+
+@kernel
+def footprint_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, disc_a: bool,
+                              pose_b: np.ndarray, half_b: np.ndarray, disc_b: bool) -> float:
+    """Signed distance between footprints at poses (3,) with half sizes (2,) (a disc's radius
+    is half[0])."""
+    return _footprint_distance(pose_a[0], pose_a[1], math.cos(pose_a[2]), math.sin(pose_a[2]),
+                               half_a[0], half_a[1], disc_a, pose_b[0], pose_b[1],
+                               math.cos(pose_b[2]), math.sin(pose_b[2]), half_b[0], half_b[1],
+                               disc_b)
+
+
+@kernel
+def _segment_point(sx: float, sy: float, ex: float, ey: float, px: float, py: float) -> float:
+    dx, dy = ex - sx, ey - sy
+    t = min(max(((px - sx) * dx + (py - sy) * dy) / max(dx * dx + dy * dy, 1e-18), 0.0), 1.0)
+    return math.hypot(sx + t * dx - px, sy + t * dy - py)
+
+
+@kernel
+def _slab(p: float, d: float, h: float) -> tuple[float, float]:
+    """Parameter interval in which the line p + t d lies within [-h, h]."""
+    if abs(d) > 1e-15:
+        t1, t2 = (-h - p) / d, (h - p) / d
+        return min(t1, t2), max(t1, t2)
+    return (-_BIG, _BIG) if abs(p) <= h else (_BIG, -_BIG)
+
+
+@kernel
+def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float, c: float,
+                 s: float, hx: float, hy: float) -> float:
+    """Distance from segment s-e to a box (heading as cosine c and sine s); 0 when they
+    intersect."""
+    p0x, p0y = (sx - x) * c + (sy - y) * s, -(sx - x) * s + (sy - y) * c
+    p1x, p1y = (ex - x) * c + (ey - y) * s, -(ex - x) * s + (ey - y) * c
+    dx, dy = p1x - p0x, p1y - p0y
+    low_x, high_x = _slab(p0x, dx, hx)
+    low_y, high_y = _slab(p0y, dy, hy)
+    enter, leave = max(low_x, low_y), min(high_x, high_y)
+    if enter <= leave and leave >= 0.0 and enter <= 1.0:
+        return 0.0
+    best = max(min(_point_box(p0x, p0y, hx, hy), _point_box(p1x, p1y, hx, hy)), 0.0)
+    for sx_, sy_ in _CORNER_SIGNS:
+        best = min(best, _segment_point(p0x, p0y, p1x, p1y, sx_ * hx, sy_ * hy))
+    return best
+
+
+@kernel
+def segment_footprint_distance(start: np.ndarray, end: np.ndarray, pose: np.ndarray,
+                               half: np.ndarray, disc: bool) -> float:
+    """Distance from segment start-end (2,) to a footprint; 0 when they intersect."""
+    return _segment_footprint(start[0], start[1], end[0], end[1], pose[0], pose[1],
+                              math.cos(pose[2]), math.sin(pose[2]), half[0], half[1], disc)
+
+
+@kernel
+def _segment_footprint(sx: float, sy: float, ex: float, ey: float, x: float, y: float,
+                       c: float, s: float, hx: float, hy: float, disc: bool) -> float:
+    """segment_footprint_distance on scalars, the heading as cosine c and sine s."""
+    if disc:
+        return max(_segment_point(sx, sy, ex, ey, x, y) - hx, 0.0)
+    return _segment_box(sx, sy, ex, ey, x, y, c, s, hx, hy)
+
+
+@kernel
+def pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
+                    poses_b: np.ndarray, half: np.ndarray, is_disc: np.ndarray) -> np.ndarray:
+    result = np.empty(len(rows_a))
+    for i in range(len(rows_a)):
+        a, b = rows_a[i], rows_b[i]
+        result[i] = footprint_signed_distance(poses_a[i], half[a], is_disc[a], poses_b[i],
+                                              half[b], is_disc[b])
+    return result
+
+
+@kernel
+def headings(parent: np.ndarray, obstacle_poses: np.ndarray) -> np.ndarray:
+    """(n + m, 2) cosine and sine of the heading of every object of `parent` (n, 3), then of
+    every obstacle: the pose checks turn each neighbour once per batch, not once per test."""
+    turned = np.empty((len(parent) + len(obstacle_poses), 2))
+    for row in range(len(turned)):
+        theta = parent[row, 2] if row < len(parent) else obstacle_poses[row - len(parent), 2]
+        turned[row, 0], turned[row, 1] = math.cos(theta), math.sin(theta)
+    return turned
+
+
+@kernel
+def _pose_clear(obj: int, x: float, y: float, theta: float, parent: np.ndarray,
+                turned: np.ndarray, half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
+                obstacle_poses: np.ndarray, pair_allowance: np.ndarray,
+                obstacle_allowance: np.ndarray, margin: float, bounds: np.ndarray,
+                table_allowance: np.ndarray) -> bool:
+    """Object `obj` at (x, y, theta), the others as in `parent` (their `headings` in
+    `turned`): on the table and clear of all."""
+    c, s = math.cos(theta), math.sin(theta)
+    if is_disc[obj]:
+        hx = hy = half[obj, 0]
+    else:
+        hx = abs(c) * half[obj, 0] + abs(s) * half[obj, 1]
+        hy = abs(s) * half[obj, 0] + abs(c) * half[obj, 1]
+    if (x - hx - bounds[0] + table_allowance[obj, 0] < 0.0
+            or bounds[2] - x - hx + table_allowance[obj, 1] < 0.0
+            or y - hy - bounds[1] + table_allowance[obj, 2] < 0.0
+            or bounds[3] - y - hy + table_allowance[obj, 3] < 0.0):
+        return False
+    n = len(parent)
+    for row in range(n + len(obstacle_poses)):
+        if row == obj:
+            continue
+        if row < n:
+            ox, oy = parent[row, 0], parent[row, 1]
+        else:
+            ox, oy = obstacle_poses[row - n, 0], obstacle_poses[row - n, 1]
+        reach = bounding[obj] + bounding[row] + margin
+        if (x - ox) ** 2 + (y - oy) ** 2 > reach * reach:
+            continue
+        allowed = pair_allowance[obj, row] if row < n else obstacle_allowance[obj, row - n]
+        if _footprint_distance(x, y, c, s, half[obj, 0], half[obj, 1], is_disc[obj], ox, oy,
+                               turned[row, 0], turned[row, 1], half[row, 0], half[row, 1],
+                               is_disc[row]) < margin - allowed:
+            return False
+    return True
+
+
+@kernel
+def swept_pose_clear(obj: int, before: np.ndarray, change: np.ndarray, steps: int,
+                     parent: np.ndarray, turned: np.ndarray, half: np.ndarray,
+                     is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
+                     pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
+                     bounds: np.ndarray, table_allowance: np.ndarray) -> bool:
+    """Object `obj` is clear at before + (j / steps) change (3,) for every j = 1..steps (the
+    last is the end pose), the others as in `parent` (their `headings` in `turned`)."""
+    count = max(steps, 1)
+    for j in range(count, 0, -1):          # the end pose first: it fails most often
+        fraction = j / count
+        if not _pose_clear(obj, before[0] + fraction * change[0],
+                           before[1] + fraction * change[1], before[2] + fraction * change[2],
+                           parent, turned, half, is_disc, bounding, obstacle_poses,
+                           pair_allowance, obstacle_allowance, margin, bounds, table_allowance):
+            return False
+    return True
+
+
+@kernel
+def swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray,
+                       change: np.ndarray, steps: np.ndarray, half: np.ndarray,
+                       is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
+                       pair_allowance: np.ndarray, obstacle_allowance: np.ndarray,
+                       margin: float, bounds: np.ndarray, table_allowance: np.ndarray
+                       ) -> np.ndarray:
+    """(k,) swept_pose_clear of each moved[i] from before[i] by change[i] in steps[i]."""
+    turned = headings(parent, obstacle_poses)
+    ok = np.ones(len(moved), np.bool_)
+    for i in range(len(moved)):
+        ok[i] = swept_pose_clear(moved[i], before[i], change[i], steps[i], parent, turned, half,
+                                 is_disc, bounding, obstacle_poses, pair_allowance,
+                                 obstacle_allowance, margin, bounds, table_allowance)
+    return ok
+
+
+@kernel
+def ball_path_clear(pushed: int, start: np.ndarray, end: np.ndarray, parent: np.ndarray,
+                    turned: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                    bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float) -> bool:
+    """The ball's path start-end (2,) keeps `clearance` from every object but `pushed` and
+    from the obstacles (their `headings` in `turned`)."""
+    n = len(parent)
+    for row in range(n + len(obstacle_poses)):
+        if row == pushed:
+            continue
+        if row < n:
+            ox, oy = parent[row, 0], parent[row, 1]
+        else:
+            ox, oy = obstacle_poses[row - n, 0], obstacle_poses[row - n, 1]
+        # a segment farther from a centre than the bounding circle plus clearance is clear
+        if (_segment_point(start[0], start[1], end[0], end[1], ox, oy)
+                > bounding[row] + clearance):
+            continue
+        if _segment_footprint(start[0], start[1], end[0], end[1], ox, oy, turned[row, 0],
+                              turned[row, 1], half[row, 0], half[row, 1],
+                              is_disc[row]) < clearance:
+            return False
+    return True
+
+
+@kernel
+def ball_paths_clear(parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
+                      end: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                      bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float
+                      ) -> np.ndarray:
+    turned = headings(parent, obstacle_poses)
+    ok = np.ones(len(pushed), np.bool_)
+    for i in range(len(pushed)):
+        ok[i] = ball_path_clear(pushed[i], start[i], end[i], parent, turned, half, is_disc,
+                                bounding, obstacle_poses, clearance)
+    return ok
+
+
+@kernel
+def constraint_rows(first: np.ndarray, second: np.ndarray, tables: tuple) -> np.ndarray:
+    """CollisionChecker's constraints g >= 0: pairs taking their first member from `first`
+    (n, 3) and their second from `second`, then obstacles and table edges from `first`.
+    `tables` is CollisionChecker.constraint_tables()."""
+    pair_first, pair_second, pair_allow, obstacle_object, obstacle_row, obstacle_allow, \
+        half, is_disc, obstacle_poses, margin, bounds, table_allow = tables
+    pairs, obstacles, n = len(pair_first), len(obstacle_object), len(first)
+    values = np.empty(pairs + obstacles + 4 * n)
+    for k in range(pairs):
+        a, b = pair_first[k], pair_second[k]
+        values[k] = (footprint_signed_distance(first[a], half[a], is_disc[a], second[b],
+                                               half[b], is_disc[b]) - margin + pair_allow[k])
+    for k in range(obstacles):
+        a, row = obstacle_object[k], obstacle_row[k]
+        values[pairs + k] = (footprint_signed_distance(first[a], half[a], is_disc[a],
+                                                       obstacle_poses[row - n], half[row],
+                                                       is_disc[row])
+                             - margin + obstacle_allow[k])
+    for i in range(n):
+        if is_disc[i]:
+            hx = hy = half[i, 0]
+        else:
+            c, s = abs(math.cos(first[i, 2])), abs(math.sin(first[i, 2]))
+            hx, hy = c * half[i, 0] + s * half[i, 1], s * half[i, 0] + c * half[i, 1]
+        x, y, row = first[i, 0], first[i, 1], pairs + obstacles + 4 * i
+        values[row] = x - hx - bounds[0] + table_allow[i, 0]
+        values[row + 1] = bounds[2] - x - hx + table_allow[i, 1]
+        values[row + 2] = y - hy - bounds[1] + table_allow[i, 2]
+        values[row + 3] = bounds[3] - y - hy + table_allow[i, 3]
+    return values
+
+
+@kernel
+def constraint_jacobian(state: np.ndarray, step: float, tables: tuple) -> np.ndarray:
+    """d g / d state (C, 3n) of constraint_rows by forward differences: each constraint
+    depends on one or two objects, so moving every object at once along one coordinate (first
+    members of pairs only, then second members only) gives all its columns."""
+    pair_first, pair_second, _, obstacle_object = tables[0], tables[1], tables[2], tables[3]
+    pairs, obstacles, n = len(pair_first), len(obstacle_object), len(state)
+    reference = constraint_rows(state, state, tables)
+    jacobian = np.zeros((len(reference), 3 * n))
+    for d in range(3):
+        shifted = state.copy()
+        shifted[:, d] += step
+        moved_first = constraint_rows(shifted, state, tables)
+        moved_second = constraint_rows(state, shifted, tables)
+        for k in range(pairs):
+            jacobian[k, 3 * pair_first[k] + d] = (moved_first[k] - reference[k]) / step
+            jacobian[k, 3 * pair_second[k] + d] = (moved_second[k] - reference[k]) / step
+        for k in range(pairs, pairs + obstacles):
+            jacobian[k, 3 * obstacle_object[k - pairs] + d] = ((moved_first[k] - reference[k])
+                                                               / step)
+        for i in range(n):
+            for j in range(4):
+                k = pairs + obstacles + 4 * i + j
+                jacobian[k, 3 * i + d] = (moved_first[k] - reference[k]) / step
+    return jacobian
+
+
+# ---------------- reach lookups (reachability.py)
+@kernel
+def _cell_reachable(x: float, y: float, x0: float, y0: float, step: float,
+                    cells: np.ndarray) -> bool:
+    col = math.floor((x - x0) / step + 1e-9)
+    row = math.floor((y - y0) / step + 1e-9)
+    if col < 0 or row < 0 or col >= cells.shape[1] or row >= cells.shape[0]:
+        return False
+    return cells[row, col]
+
+
+@kernel
+def approach_reached(obj: int, face: int, x: float, y: float, c: float, s: float,
+                     offsets: np.ndarray, x0: float, y0: float, step: float,
+                     cells: np.ndarray) -> bool:
+    """Whether the approach point of `face`, offsets[obj, face] (object frame), of object
+    `obj` at (x, y) with heading cosine c and sine s is in reach."""
+    ox, oy = offsets[obj, face, 0], offsets[obj, face, 1]
+    return _cell_reachable(x + (c * ox - s * oy), y + (s * ox + c * oy), x0, y0, step, cells)
+
+
+@kernel
+def faces_reached_at(obj: int, pose: np.ndarray, offsets: np.ndarray, available: np.ndarray,
+                     x0: float, y0: float, step: float, cells: np.ndarray) -> int:
+    """How many faces f of object `obj` at `pose` (3,) are available[obj, f] and have their
+    approach point in reach."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    count = 0
+    for f in range(offsets.shape[1]):
+        if available[obj, f] and approach_reached(obj, f, pose[0], pose[1], c, s, offsets,
+                                                  x0, y0, step, cells):
+            count += 1
+    return count
+
+
+@kernel
+def faces_reached(objects: np.ndarray, poses: np.ndarray, offsets: np.ndarray,
+                  available: np.ndarray, x0: float, y0: float, step: float,
+                  cells: np.ndarray) -> np.ndarray:
+    """(k,) faces_reached_at of objects (k,) at poses (k, 3)."""
+    count = np.zeros(len(objects), np.int64)
+    for i in range(len(objects)):
+        count[i] = faces_reached_at(objects[i], poses[i], offsets, available, x0, y0, step,
+                                    cells)
+    return count
+
+
+@kernel
+def segment_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: float, y0: float,
+                    step: float, cells: np.ndarray) -> bool:
+    """Whether every point of the segment start-end (2,), sampled evenly at most `spacing`
+    apart (ends included), is in reach."""
+    dx, dy = end[0] - start[0], end[1] - start[1]
+    count = max(2, math.ceil(math.sqrt(dx * dx + dy * dy) / spacing) + 1)
+    for j in range(count):
+        fraction = j / (count - 1)
+        if not _cell_reachable(start[0] + fraction * dx, start[1] + fraction * dy, x0, y0,
+                               step, cells):
+            return False
+    return True
+
+
+@kernel
+def segments_reached(start: np.ndarray, end: np.ndarray, spacing: float, x0: float, y0: float,
+                     step: float, cells: np.ndarray) -> np.ndarray:
+    """(k,) segment_reached of each segment start-end (k, 2)."""
+    ok = np.ones(len(start), np.bool_)
+    for i in range(len(start)):
+        ok[i] = segment_reached(start[i], end[i], spacing, x0, y0, step, cells)
+    return ok
+
+
+@kernel
+def points_reached(points: np.ndarray, x0: float, y0: float, step: float, cells: np.ndarray
+                   ) -> np.ndarray:
+    """(k,) whether each of points (k, 2) is in reach."""
+    reached = np.empty(len(points), np.bool_)
+    for i in range(len(points)):
+        reached[i] = _cell_reachable(points[i, 0], points[i, 1], x0, y0, step, cells)
+    return reached
+
+
+# ---------------- push geometry and checks (problem.py)
+@kernel
+def batch_push_geometry(before: np.ndarray, rates: np.ndarray, contact: np.ndarray,
+                        direction: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                        lengths: np.ndarray, half_length: np.ndarray, max_substep: float,
+                        ball_radius: float, approach_clearance: float
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For pushes (k,) of objects at poses `before` (k, 3): the pose change (k, 3), how many
+    poses along the way to check (one per max_substep of travel, a box's turn counted as the
+    arc of its ends) and the ball's approach and end points (k, 2), as the executor moves it.
+    One compiled pass: the planner checks a few dozen pushes at a time, thousands of times a
+    second."""
+    k = len(objects)
+    change = np.empty((k, 3))
+    steps = np.empty(k, np.int64)
+    start = np.empty((k, 2))
+    end = np.empty((k, 2))
+    for i in range(k):
+        obj, slot, length = objects[i], primitives[i] - 1, lengths[i]
+        c, s = math.cos(before[i, 2]), math.sin(before[i, 2])
+        rx, ry = rates[obj, slot, 0], rates[obj, slot, 1]
+        ux, uy, ut = c * rx - s * ry, s * rx + c * ry, rates[obj, slot, 2]
+        change[i, 0], change[i, 1], change[i, 2] = length * ux, length * uy, length * ut
+        travel = length * max(math.sqrt(ux * ux + uy * uy), abs(ut) * half_length[obj])
+        steps[i] = math.ceil(travel / max_substep)
+        cx, cy = contact[obj, slot, 0], contact[obj, slot, 1]
+        dx, dy = direction[obj, slot, 0], direction[obj, slot, 1]
+        wdx, wdy = c * dx - s * dy, s * dx + c * dy
+        touch_x = before[i, 0] + (c * cx - s * cy) - ball_radius * wdx
+        touch_y = before[i, 1] + (s * cx + c * cy) - ball_radius * wdy
+        start[i, 0] = touch_x - approach_clearance * wdx
+        start[i, 1] = touch_y - approach_clearance * wdy
+        end[i, 0], end[i, 1] = touch_x + length * wdx, touch_y + length * wdy
+    return change, steps, start, end
+
+
+@kernel
+def refused_pushes(primitives: np.ndarray, before: np.ndarray, refusals: np.ndarray,
+                   period: float) -> np.ndarray:
+    """(k,) True for pushes of one object with `primitives` (k,) from poses `before` (k, 3)
+    that it was refused from (nearly) there: refusals (m, 4) are primitive, x, y, theta
+    (`PlanningProblem.refusals_for`)."""
+    refused = np.zeros(len(primitives), np.bool_)
+    for i in range(len(primitives)):
+        for r in range(len(refusals)):
+            if primitives[i] != refusals[r, 0]:
+                continue
+            turn = before[i, 2] - refusals[r, 3]
+            turn = (turn + period / 2) % period - period / 2 if period > 0 else 0.0
+            if (math.hypot(before[i, 0] - refusals[r, 1], before[i, 1] - refusals[r, 2])
+                    <= REFUSED_RADIUS and abs(turn) <= REFUSED_TURN):
+                refused[i] = True
+                break
+    return refused
+
+
+@kernel
+def stranded_objects(state: np.ndarray, faces: tuple, reach: tuple) -> np.ndarray:
+    """(n,) True for the objects of `state` short of a reachable face; `faces` and `reach` as
+    in PlanningProblem.check_tables()."""
+    offsets, available, _, full, _, _ = faces
+    x0, y0, step, cells = reach
+    stranded = np.empty(len(state), np.bool_)
+    for j in range(len(state)):
+        stranded[j] = faces_reached_at(j, state[j], offsets, available, x0, y0, step,
+                                       cells) < full[j]
+    return stranded
+
+
+@kernel
+def keeps_face_rule(obj: int, before: np.ndarray, final: np.ndarray, stranded: np.ndarray,
+                    faces: tuple, reach: tuple, retreat_limit: float) -> bool:
+    """The face rule (PlanningProblem.with_face_allowance) for moving `obj` from `before` to
+    `final` (3,), `stranded` being stranded_objects of the state it moves in: it may leave its
+    group no more stranded objects than the allowance or than before, and an object short of a
+    face may not move more than `retreat_limit` against the push of a face the arm cannot
+    reach (only that face could undo the move)."""
+    offsets, available, rates, full, group, allowance = faces
+    x0, y0, step, cells = reach
+    faces_before = faces_reached_at(obj, before, offsets, available, x0, y0, step, cells)
+    faces_after = faces_reached_at(obj, final, offsets, available, x0, y0, step, cells)
+    if faces_before < full[obj] and faces_after <= faces_before:
+        c, s = math.cos(before[2]), math.sin(before[2])
+        for f in range(4):
+            if not available[obj, f] or approach_reached(obj, f, before[0], before[1], c, s,
+                                                         offsets, x0, y0, step, cells):
+                continue
+            wx = c * rates[obj, f, 0] - s * rates[obj, f, 1]
+            wy = s * rates[obj, f, 0] + c * rates[obj, f, 1]
+            norm = max(math.sqrt(wx * wx + wy * wy), 1e-12)
+            if (wx * (final[0] - before[0]) + wy * (final[1] - before[1])) / norm < -retreat_limit:
+                return False
+    if faces_after >= faces_before:
+        return True
+    in_group = 0
+    for j in range(len(stranded)):
+        if group[j] == group[obj] and stranded[j]:
+            in_group += 1
+    was = faces_before < full[obj]
+    before_count = in_group - stranded[obj] + was
+    after_count = before_count - was + (faces_after < full[obj])
+    return after_count <= max(allowance[group[obj]], before_count)
+
+
+@kernel
+def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
+                          change: np.ndarray, steps: np.ndarray, start: np.ndarray,
+                          end: np.ndarray, ok: np.ndarray, tables: tuple) -> np.ndarray:
+    """`pushes_valid` in one compiled pass: each push still `ok` (k,) (length and refusals
+    checked) must keep its way clear (swept_pose_clear), keep the face rule if the problem has
+    one (keeps_face_rule), and keep the ball's path in reach and clear of the others.
+    `tables` are PlanningProblem.check_tables(). A numpy version spent about 60 us a call in
+    per-call overhead, most of a REARRANGE search's time."""
+    collision, ball_clearance, reach, reach_spacing, face_rule, faces, retreat_limit = tables
+    half, is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin, bounds, table_allow \
+        = collision
+    x0, y0, step, cells = reach
+    stranded = stranded_objects(state, faces, reach) if face_rule else np.zeros(0, np.bool_)
+    turned = headings(state, obstacles)
+    final = np.empty(3)
+    for i in range(len(objects)):
+        if not ok[i]:
+            continue
+        o = objects[i]
+        if not swept_pose_clear(o, before[i], change[i], steps[i], state, turned, half,
+                                is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin,
+                                bounds, table_allow):
+            ok[i] = False
+            continue
+        if face_rule:
+            for d in range(3):
+                final[d] = before[i, d] + change[i, d]
+            if not keeps_face_rule(o, before[i], final, stranded, faces, reach, retreat_limit):
+                ok[i] = False
+                continue
+        ok[i] = (segment_reached(start[i], end[i], reach_spacing, x0, y0, step, cells)
+                 and ball_path_clear(o, start[i], end[i], state, turned, half, is_disc,
+                                     bounding, obstacles, ball_clearance))
+    return ok
+
+
+# ---------------- REARRANGE's A* (rearrange.py)
+@kernel
+def pose_key(x: float, y: float, theta: float, weight: float, period: float) -> int:
+    """One integer for a pose's duplicate-pose grid cell (KEY_RESOLUTION), heading reduced
+    modulo the symmetry: 21 bits per axis, far more than a table needs."""
+    kx = round(x / KEY_RESOLUTION)
+    ky = round(y / KEY_RESOLUTION)
+    kt = round(weight * (theta % period if period > 0 else 0.0) / KEY_RESOLUTION)
+    offset = 1 << 20
+    return ((kx + offset) << 42) | ((ky + offset) << 21) | (kt + offset)
+
+
+@kernel
+def expand_pushes(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: np.ndarray,
+            weight: float, period: float, longest: float, shortest: float,
+            fractions: np.ndarray, detours: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pushes to try on one object from each of `poses` (b, 3): per primitive (its pose
+    change per metre of push, rates[primitive - 1]: x, y in the object frame, theta), the
+    length that brings it closest to `goal` (closed form, the pose being affine in the length)
+    times each of `fractions`, then each of the fixed `detours`; lengths below `shortest` are
+    left out, steering lengths are clipped to [0, longest]. Compiled: the A* asks for a batch
+    of a few poses at a time, far too small for numpy to pay off.
+
+    Returns:
+        rows (k,) into `poses`, primitives (k,), lengths (k,), the poses after the pushes
+        (k, 3), their weighted errors to `goal` (object_error) and duplicate-pose keys
+        (k,) (pose_key).
+    """
+    per_pose = len(primitives) * (len(fractions) + len(detours))
+    total = len(poses) * per_pose
+    rows = np.empty(total, np.int64)
+    kinds = np.empty(total, np.int64)
+    lengths = np.empty(total)
+    new = np.empty((total, 3))
+    errors = np.empty(total)
+    keys = np.empty(total, np.int64)
+    w2 = weight ** 2
+    k = 0
+    for b in range(len(poses)):
+        x, y, theta = poses[b, 0], poses[b, 1], poses[b, 2]
+        c, s = math.cos(theta), math.sin(theta)
+        ex, ey, et = goal[0] - x, goal[1] - y, goal[2] - theta
+        et = (et + period / 2) % period - period / 2 if period > 0 else 0.0
+        for primitive in primitives:
+            rx, ry, rt = rates[primitive - 1, 0], rates[primitive - 1, 1], rates[primitive - 1, 2]
+            ux, uy = c * rx - s * ry, s * rx + c * ry
+            ideal = ((ux * ex + uy * ey + rt * et * w2)
+                     / max(ux * ux + uy * uy + rt * rt * w2, 1e-12))
+            for m in range(len(fractions) + len(detours)):
+                if m < len(fractions):
+                    length = min(max(ideal * fractions[m], 0.0), longest)
+                else:
+                    length = detours[m - len(fractions)]
+                if length < shortest:
+                    continue
+                nx, ny, nt = x + length * ux, y + length * uy, theta + length * rt
+                dx, dy, dt = goal[0] - nx, goal[1] - ny, goal[2] - nt
+                dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
+                rows[k], kinds[k], lengths[k] = b, primitive, length
+                new[k, 0], new[k, 1], new[k, 2] = nx, ny, nt
+                errors[k] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
+                keys[k] = pose_key(nx, ny, nt, weight, period)
+                k += 1
+    return rows[:k], kinds[:k], lengths[:k], new[:k], errors[:k], keys[:k]
+
+
+@kernel
+def search_object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: float,
+                 period: float, tolerance: float, max_expansions: int, batch: int,
+                 primitives: np.ndarray, fractions: np.ndarray, detours: np.ndarray,
+                 refusals: np.ndarray, geometry: tuple, checks: tuple
+                 ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """rearrange.object_path's search, compiled whole: each round pops `batch` nodes, expands
+    them (expand_pushes), drops poses already seen and checks the rest (pushes_valid_compiled)
+    in one batch. `geometry` is PlanningProblem.geometry_tables(), `checks` its check_tables().
+
+    Returns:
+        the path's primitives and lengths, and whether it reached the goal.
+    """
+    rates, contact, direction, half_length, max_substep, ball_radius, clearance, \
+        max_lengths, shortest = geometry
+    longest = max_lengths[index]
+    per_pose = len(primitives) * (len(fractions) + len(detours))
+    capacity = 1 + max_expansions * per_pose
+    poses = np.empty((capacity, 3))
+    parents = np.empty(capacity, np.int64)
+    kinds = np.empty(capacity, np.int64)
+    lengths = np.empty(capacity)
+    errors = np.empty(capacity)
+    depths = np.empty(capacity, np.int64)
+    poses[0] = state[index]
+    parents[0], depths[0] = -1, 0
+    dx, dy = goal[0] - poses[0, 0], goal[1] - poses[0, 1]
+    dt = goal[2] - poses[0, 2]
+    dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
+    errors[0] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
+    if errors[0] <= tolerance:
+        return np.zeros(0, np.int64), np.zeros(0), True
+    size, best = 1, 0
+    queue = [(errors[0], 0)]
+    seen = {pose_key(poses[0, 0], poses[0, 1], poses[0, 2], weight, period)}
+    expansions = 0
+    while len(queue) > 0 and expansions < max_expansions:
+        count = min(batch, len(queue))
+        nodes = np.empty(count, np.int64)
+        for b in range(count):
+            nodes[b] = heapq.heappop(queue)[1]
+        expansions += count
+        expanded = poses[nodes]
+        rows, kind, length, new, error, keys = expand_pushes(
+            expanded, rates[index], primitives, goal, weight, period, longest, shortest,
+            fractions, detours)
+        fresh = np.zeros(len(rows), np.bool_)
+        for k in range(len(rows)):
+            fresh[k] = keys[k] not in seen
+        tried = np.nonzero(fresh)[0]
+        if len(tried) == 0:
+            continue
+        objects = np.full(len(tried), index)
+        before = expanded[rows[tried]]
+        change, steps, start, end = batch_push_geometry(
+            before, rates, contact, direction, objects, kind[tried], length[tried],
+            half_length, max_substep, ball_radius, clearance)
+        ok = ((length[tried] <= longest + 1e-9)
+              & ~refused_pushes(kind[tried], before, refusals, period))
+        valid = tried[pushes_valid_compiled(state, objects, before, change, steps, start, end,
+                                            ok, checks)]
+        for k in valid[np.argsort(error[valid], kind="mergesort")]:
+            if keys[k] in seen:
+                continue
+            seen.add(keys[k])
+            child = size
+            size += 1
+            poses[child] = new[k]
+            parents[child] = nodes[rows[k]]
+            kinds[child], lengths[child], errors[child] = kind[k], length[k], error[k]
+            depths[child] = depths[parents[child]] + 1
+            if errors[child] < errors[best]:
+                best = child
+            if errors[child] <= tolerance:
+                return _trace(parents, kinds, lengths, child) + (True,)
+            heapq.heappush(queue, (errors[child] + PATH_PUSH_COST * depths[child], child))
+    return _trace(parents, kinds, lengths, best) + (False,)
+
+
+@kernel
+def _trace(parents: np.ndarray, kinds: np.ndarray, lengths: np.ndarray, node: int
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Primitives and lengths of the pushes from the root to `node`."""
+    depth, walk = 0, node
+    while walk > 0:
+        depth += 1
+        walk = parents[walk]
+    path_kinds = np.empty(depth, np.int64)
+    path_lengths = np.empty(depth)
+    for d in range(depth - 1, -1, -1):
+        path_kinds[d], path_lengths[d] = kinds[node], lengths[node]
+        node = parents[node]
+    return path_kinds, path_lengths
