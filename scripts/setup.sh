@@ -140,8 +140,16 @@ if [[ "${TSRRT_FORCE_BUILD:-0}" == 1 || ! -f "$WS/install/setup.bash" \
     tail -n 200 "$build_log" >&2
     die "colcon build failed (full output: $build_log)"
   fi
-  echo "$src_hash" >"$BUILD_STAMP"
   log "$(grep -E '^Summary:' "$build_log" || echo 'build done') in $((SECONDS - start))s"
+  # numba compiles the planner's kernels on first use (about 10 s) and caches them on disk:
+  # compile them now, not in a first plan.
+  if ! (source "$ROOT/scripts/env.sh" && python -m tsrrt_planner.compile_kernels) \
+      >"$WS/log/tsrrt-kernels.txt" 2>&1; then
+    tail -n 50 "$WS/log/tsrrt-kernels.txt" >&2
+    die "compiling the planner's kernels failed (full output: $WS/log/tsrrt-kernels.txt)"
+  fi
+  log "$(tail -n 1 "$WS/log/tsrrt-kernels.txt")"
+  echo "$src_hash" >"$BUILD_STAMP"
 elif [[ "$QUIET" != 1 ]]; then
   log "workspace up to date"
 fi

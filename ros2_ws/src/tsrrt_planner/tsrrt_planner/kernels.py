@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit
 
 kernel = njit(cache=True, nogil=True)
+inline_kernel = njit(cache=True, nogil=True, inline="always")
 
 _BIG = 1e9
 _CORNER_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
@@ -39,7 +40,7 @@ KEY_RESOLUTION = 0.002  # metres (and weighted radians) of the duplicate-pose gr
 
 
 # ---------------- collision tests (collision.py)
-@kernel
+@inline_kernel
 def _point_box(px: float, py: float, hx: float, hy: float) -> float:
     """Signed distance of a point, given in a box's frame, to the box (half sizes hx, hy)."""
     qx, qy = abs(px) - hx, abs(py) - hy
@@ -47,7 +48,7 @@ def _point_box(px: float, py: float, hx: float, hy: float) -> float:
     return math.sqrt(ox * ox + oy * oy) + min(max(qx, qy), 0.0)
 
 
-@kernel
+@inline_kernel
 def _corners_to_box(x: float, y: float, c: float, s: float, hx: float, hy: float,
                     bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float) -> float:
     """Smallest signed distance of box (x, y, cos, sin; half sizes)'s corners to box b."""
@@ -66,7 +67,7 @@ def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
                            bx, by, math.cos(bt), math.sin(bt), bhx, bhy)
 
 
-@kernel
+@inline_kernel
 def _box_box_turned(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
                     bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float
                     ) -> float:
@@ -90,7 +91,7 @@ def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy:
     return _box_disc_turned(x, y, math.cos(t), math.sin(t), hx, hy, cx, cy, radius)
 
 
-@kernel
+@inline_kernel
 def _box_disc_turned(x: float, y: float, c: float, s: float, hx: float, hy: float, cx: float,
                      cy: float, radius: float) -> float:
     """_box_disc with the box's heading given by its cosine and sine."""
@@ -98,7 +99,7 @@ def _box_disc_turned(x: float, y: float, c: float, s: float, hx: float, hy: floa
     return _point_box(dx * c + dy * s, -dx * s + dy * c, hx, hy) - radius
 
 
-@kernel
+@inline_kernel
 def _footprint_distance(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
                         disc_a: bool, bx: float, by: float, bc: float, bs: float, bhx: float,
                         bhy: float, disc_b: bool) -> float:
@@ -124,14 +125,14 @@ def footprint_signed_distance(pose_a: np.ndarray, half_a: np.ndarray, disc_a: bo
                                disc_b)
 
 
-@kernel
+@inline_kernel
 def _segment_point(sx: float, sy: float, ex: float, ey: float, px: float, py: float) -> float:
     dx, dy = ex - sx, ey - sy
     t = min(max(((px - sx) * dx + (py - sy) * dy) / max(dx * dx + dy * dy, 1e-18), 0.0), 1.0)
     return math.hypot(sx + t * dx - px, sy + t * dy - py)
 
 
-@kernel
+@inline_kernel
 def _slab(p: float, d: float, h: float) -> tuple[float, float]:
     """Parameter interval in which the line p + t d lies within [-h, h]."""
     if abs(d) > 1e-15:
@@ -140,7 +141,7 @@ def _slab(p: float, d: float, h: float) -> tuple[float, float]:
     return (-_BIG, _BIG) if abs(p) <= h else (_BIG, -_BIG)
 
 
-@kernel
+@inline_kernel
 def _segment_box(sx: float, sy: float, ex: float, ey: float, x: float, y: float, c: float,
                  s: float, hx: float, hy: float) -> float:
     """Distance from segment s-e to a box (heading as cosine c and sine s); 0 when they
@@ -167,7 +168,7 @@ def segment_footprint_distance(start: np.ndarray, end: np.ndarray, pose: np.ndar
                               math.cos(pose[2]), math.sin(pose[2]), half[0], half[1], disc)
 
 
-@kernel
+@inline_kernel
 def _segment_footprint(sx: float, sy: float, ex: float, ey: float, x: float, y: float,
                        c: float, s: float, hx: float, hy: float, disc: bool) -> float:
     """segment_footprint_distance on scalars, the heading as cosine c and sine s."""
@@ -198,7 +199,7 @@ def headings(parent: np.ndarray, obstacle_poses: np.ndarray) -> np.ndarray:
     return turned
 
 
-@kernel
+@inline_kernel
 def _pose_clear(obj: int, x: float, y: float, theta: float, parent: np.ndarray,
                 turned: np.ndarray, half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
                 obstacle_poses: np.ndarray, pair_allowance: np.ndarray,
@@ -371,7 +372,7 @@ def constraint_jacobian(state: np.ndarray, step: float, tables: tuple) -> np.nda
 
 
 # ---------------- reach lookups (reachability.py)
-@kernel
+@inline_kernel
 def _cell_reachable(x: float, y: float, x0: float, y0: float, step: float,
                     cells: np.ndarray) -> bool:
     col = math.floor((x - x0) / step + 1e-9)
@@ -381,7 +382,7 @@ def _cell_reachable(x: float, y: float, x0: float, y0: float, step: float,
     return cells[row, col]
 
 
-@kernel
+@inline_kernel
 def approach_reached(obj: int, face: int, x: float, y: float, c: float, s: float,
                      offsets: np.ndarray, x0: float, y0: float, step: float,
                      cells: np.ndarray) -> bool:
