@@ -879,15 +879,16 @@ class _TsrrtSearch(_Search):
                 if target.cost <= best_cost + NEAR_OPTIMAL * abs(best_cost)]
         if self.rng.random() < 0.2:
             near = [self.targets[int(self.rng.integers(len(self.targets)))]]
-        orders = [assignment(self.groups, target.state, state) for target in near]
-        turned = np.array([
-            turned_towards(target.state[order], target.heading_steps[order], state)
-            for target, order in zip(near, orders, strict=True)])
+        states = np.array([target.state for target in near])
+        orders = assignment(self.groups, states, state)
+        matched = np.take_along_axis(states, orders[..., None], axis=1)
+        turned = turned_towards(matched, np.take_along_axis(
+            np.array([target.heading_steps for target in near]), orders, axis=1), state)
         k = int(np.argmin(self.rho(turned, state)))
         if equally_good(self.problem, turned[k], near[k].cost):
             return turned[k]
         # turned one by one, two boxes may overlap: the target as found then
-        return near[k].state[orders[k]]
+        return matched[k]
 
     def rearrange(self, node: int, target: np.ndarray) -> int:
         """REARRANGE (rearrange.py): move the objects to `target` (inset from the table
@@ -1270,15 +1271,20 @@ def mirror_images(problem: PlanningProblem, state: np.ndarray) -> list[np.ndarra
     return images
 
 
-def assignment(groups: list[np.ndarray], target: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """The slots of `target` (n, 3) to give each object, `target[order]`: interchangeable
-    objects reassigned to minimise their travel from `state`."""
-    order = np.arange(len(target))
+def assignment(groups: list[np.ndarray], targets: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """The slots of each of `targets` (..., n, 3) to give each object, `target[order]`:
+    interchangeable objects reassigned to minimise their travel from `state` (n, 3). Distances
+    for all targets at once: choose_target matches a few dozen targets per extension."""
+    batch = targets.shape[:-2]
+    flat = targets.reshape(-1, *targets.shape[-2:])
+    orders = np.tile(np.arange(flat.shape[1]), (len(flat), 1))
     for group in groups:
-        distance = np.linalg.norm(state[group, None, :2] - target[None, group, :2], axis=-1)
-        rows, columns = linear_sum_assignment(distance)
-        order[group[rows]] = group[columns]
-    return order
+        distances = np.linalg.norm(state[None, group, None, :2] - flat[:, None, group, :2],
+                                   axis=-1)                                   # (T, g, g)
+        for order, distance in zip(orders, distances, strict=True):
+            rows, columns = linear_sum_assignment(distance)
+            order[group[rows]] = group[columns]
+    return orders.reshape(*batch, flat.shape[1])
 
 
 def heading_steps(problem: PlanningProblem, state: np.ndarray, cost: float) -> np.ndarray:
@@ -1300,14 +1306,15 @@ def heading_steps(problem: PlanningProblem, state: np.ndarray, cost: float) -> n
 
 
 def turned_towards(target: np.ndarray, steps: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """`target` (n, 3) with each object turned in place by its `heading_steps` to the heading
-    nearest its heading in `state`: any heading where steps are 0, none where inf."""
-    delta = state[:, 2] - target[:, 2]
+    """`target` (..., n, 3) with each object turned in place by its `heading_steps` (..., n)
+    to the heading nearest its heading in `state` (n, 3): any heading where steps are 0, none
+    where inf."""
+    delta = state[:, 2] - target[..., 2]
     quarter = np.isfinite(steps) & (steps > 0)
     step = np.where(quarter, steps, 1.0)
     turned = target.copy()
-    turned[:, 2] += np.where(steps == 0, delta, np.where(quarter, np.round(delta / step) * step,
-                                                          0.0))
+    turned[..., 2] += np.where(steps == 0, delta, np.where(quarter, np.round(delta / step) * step,
+                                                            0.0))
     return turned
 
 
