@@ -332,10 +332,15 @@ class PlanningProblem:
 
     def apply(self, state: np.ndarray, object_index: int, primitive: int,
               length: float) -> np.ndarray:
-        """The whole next state (n, 3) after one push."""
+        """The whole next state (n, 3) after one push: `predict` for one push, on scalars
+        (plans are replayed one push at a time, tens of thousands of times a second)."""
         new = state.copy()
-        new[object_index] = self.predict(state, np.array([object_index]), np.array([primitive]),
-                                         np.array([length]))[0]
+        rx, ry, rt = self.rates[object_index, primitive - 1]
+        theta = state[object_index, 2]
+        c, s = np.cos(theta), np.sin(theta)
+        new[object_index, 0] += length * (c * rx - s * ry)
+        new[object_index, 1] += length * (s * rx + c * ry)
+        new[object_index, 2] += length * rt
         return new
 
     # ------------------------------------------------------------------ constraints
