@@ -257,8 +257,8 @@ class PlanningProblem:
         return variant
 
     def _face_tables(self) -> tuple[np.ndarray, ...]:
-        """The face rule's arrays as _pushes_valid takes them, contiguous so that every call
-        uses one compiled signature."""
+        """The face rule's arrays as kernels.pushes_valid_compiled takes them, contiguous so
+        that every call uses one compiled signature."""
         allowance = np.zeros(self.n) if self.face_allowance is None else self.face_allowance
         return (np.ascontiguousarray(self.approach_offsets),
                 np.ascontiguousarray(self.available[:, :4]),

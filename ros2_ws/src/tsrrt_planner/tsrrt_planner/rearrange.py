@@ -68,9 +68,10 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
                 max_expansions: int = 48, batch: int = 4) -> tuple[list[Push], bool]:
     """Pushes that move object `index` from its pose in `state` (n, 3) towards `goal` (3,) with
     every other object fixed: weighted A* over the object's pose (f = remaining error +
-    PATH_PUSH_COST per push), expanding `batch` nodes per validity check, duplicate poses
-    pruned on a KEY_RESOLUTION grid. Compiled whole for a grid reach model (the Python loop
-    was most of REARRANGE's time); `tick` (the search's budget check) runs before it.
+    kernels.PATH_PUSH_COST per push), expanding `batch` nodes per validity check, duplicate
+    poses pruned on a kernels.KEY_RESOLUTION grid. Compiled whole
+    (kernels.search_object_path: the Python loop was most of REARRANGE's time); `tick` (the
+    search's budget check) runs before it.
 
     Returns:
         (pushes, reached): the path to the first pose within `tolerance` of the goal (reached
