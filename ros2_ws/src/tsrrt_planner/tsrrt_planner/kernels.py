@@ -60,18 +60,10 @@ def _corners_to_box(x: float, y: float, c: float, s: float, hx: float, hy: float
     return best
 
 
-@kernel
-def _box_box(ax: float, ay: float, at: float, ahx: float, ahy: float,
-             bx: float, by: float, bt: float, bhx: float, bhy: float) -> float:
-    return _box_box_turned(ax, ay, math.cos(at), math.sin(at), ahx, ahy,
-                           bx, by, math.cos(bt), math.sin(bt), bhx, bhy)
-
-
 @inline_kernel
-def _box_box_turned(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
-                    bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float
-                    ) -> float:
-    """_box_box with the headings given by their cosines and sines."""
+def _box_box(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy: float,
+             bx: float, by: float, bc: float, bs: float, bhx: float, bhy: float) -> float:
+    """Signed distance of two boxes, their headings given by their cosines and sines."""
     dx, dy = bx - ax, by - ay
     # Relative rotation: the projections of one box's axes on the other's.
     cc, cs = abs(ac * bc + as_ * bs), abs(ac * bs - as_ * bc)
@@ -85,16 +77,10 @@ def _box_box_turned(ax: float, ay: float, ac: float, as_: float, ahx: float, ahy
                _corners_to_box(bx, by, bc, bs, bhx, bhy, ax, ay, ac, as_, ahx, ahy))
 
 
-@kernel
-def _box_disc(x: float, y: float, t: float, hx: float, hy: float, cx: float, cy: float,
-              radius: float) -> float:
-    return _box_disc_turned(x, y, math.cos(t), math.sin(t), hx, hy, cx, cy, radius)
-
-
 @inline_kernel
-def _box_disc_turned(x: float, y: float, c: float, s: float, hx: float, hy: float, cx: float,
-                     cy: float, radius: float) -> float:
-    """_box_disc with the box's heading given by its cosine and sine."""
+def _box_disc(x: float, y: float, c: float, s: float, hx: float, hy: float, cx: float,
+              cy: float, radius: float) -> float:
+    """Signed distance of a box (heading as cosine c and sine s) and a disc."""
     dx, dy = cx - x, cy - y
     return _point_box(dx * c + dy * s, -dx * s + dy * c, hx, hy) - radius
 
@@ -108,10 +94,10 @@ def _footprint_distance(ax: float, ay: float, ac: float, as_: float, ahx: float,
     if disc_a and disc_b:
         return math.hypot(ax - bx, ay - by) - ahx - bhx
     if disc_b:
-        return _box_disc_turned(ax, ay, ac, as_, ahx, ahy, bx, by, bhx)
+        return _box_disc(ax, ay, ac, as_, ahx, ahy, bx, by, bhx)
     if disc_a:
-        return _box_disc_turned(bx, by, bc, bs, bhx, bhy, ax, ay, ahx)
-    return _box_box_turned(ax, ay, ac, as_, ahx, ahy, bx, by, bc, bs, bhx, bhy)
+        return _box_disc(bx, by, bc, bs, bhx, bhy, ax, ay, ahx)
+    return _box_box(ax, ay, ac, as_, ahx, ahy, bx, by, bc, bs, bhx, bhy)
 
 
 @kernel
