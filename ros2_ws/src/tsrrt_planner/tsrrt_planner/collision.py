@@ -173,9 +173,9 @@ class CollisionChecker:
             np.asarray(steps, np.int64), *self.pose_tables())
 
     def pose_tables(self) -> tuple:
-        """The arrays swept_pose_clear takes after `parent` and `turned` (shapes, allowances,
-        margin, bounds), for compiled checks elsewhere; built per call, as `tolerate` replaces
-        the allowances."""
+        """The arrays kernels.swept_poses_clear takes after the pushes (shapes, obstacles,
+        allowances, margin, bounds), also the push checks' (PlanningProblem.check_tables);
+        built per call, as `tolerate` replaces the allowances."""
         return (self.shapes.half, self.shapes.is_disc, self.shapes.bounding_radius,
                 self.shapes.obstacle_poses, self.pair_allowance, self.obstacle_allowance,
                 self.margin, self._bounds, self.table_allowance)

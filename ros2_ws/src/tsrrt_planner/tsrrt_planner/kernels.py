@@ -165,7 +165,7 @@ def _segment_footprint(sx: float, sy: float, ex: float, ey: float, x: float, y: 
 
 @kernel
 def pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
-                    poses_b: np.ndarray, half: np.ndarray, is_disc: np.ndarray) -> np.ndarray:
+                   poses_b: np.ndarray, half: np.ndarray, is_disc: np.ndarray) -> np.ndarray:
     result = np.empty(len(rows_a))
     for i in range(len(rows_a)):
         a, b = rows_a[i], rows_b[i]
@@ -175,49 +175,52 @@ def pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
 
 
 @kernel
-def headings(parent: np.ndarray, obstacle_poses: np.ndarray) -> np.ndarray:
-    """(n + m, 2) cosine and sine of the heading of every object of `parent` (n, 3), then of
-    every obstacle: the pose checks turn each neighbour once per batch, not once per test."""
-    turned = np.empty((len(parent) + len(obstacle_poses), 2))
-    for row in range(len(turned)):
-        theta = parent[row, 2] if row < len(parent) else obstacle_poses[row - len(parent), 2]
-        turned[row, 0], turned[row, 1] = math.cos(theta), math.sin(theta)
-    return turned
+def neighbours(parent: np.ndarray, obstacle_poses: np.ndarray) -> np.ndarray:
+    """(n + m, 4) x, y and the cosine and sine of the heading of every object of `parent`
+    (n, 3), then of every obstacle: the footprint rows the pose and ball-path tests go through,
+    each heading turned once per batch, not once per test."""
+    rows = np.empty((len(parent) + len(obstacle_poses), 4))
+    for row in range(len(rows)):
+        pose = parent[row] if row < len(parent) else obstacle_poses[row - len(parent)]
+        rows[row, 0], rows[row, 1] = pose[0], pose[1]
+        rows[row, 2], rows[row, 3] = math.cos(pose[2]), math.sin(pose[2])
+    return rows
 
 
 @inline_kernel
-def _pose_clear(obj: int, x: float, y: float, theta: float, parent: np.ndarray,
-                turned: np.ndarray, half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
-                obstacle_poses: np.ndarray, pair_allowance: np.ndarray,
-                obstacle_allowance: np.ndarray, margin: float, bounds: np.ndarray,
-                table_allowance: np.ndarray) -> bool:
-    """Object `obj` at (x, y, theta), the others as in `parent` (their `headings` in
-    `turned`): on the table and clear of all."""
-    c, s = math.cos(theta), math.sin(theta)
+def _half_extents(obj: int, c: float, s: float, half: np.ndarray, is_disc: np.ndarray
+                  ) -> tuple[float, float]:
+    """Half extents along world x and y of footprint `obj` turned to cosine c and sine s."""
     if is_disc[obj]:
-        hx = hy = half[obj, 0]
-    else:
-        hx = abs(c) * half[obj, 0] + abs(s) * half[obj, 1]
-        hy = abs(s) * half[obj, 0] + abs(c) * half[obj, 1]
+        return half[obj, 0], half[obj, 0]
+    return (abs(c) * half[obj, 0] + abs(s) * half[obj, 1],
+            abs(s) * half[obj, 0] + abs(c) * half[obj, 1])
+
+
+@inline_kernel
+def _pose_clear(obj: int, x: float, y: float, theta: float, others: np.ndarray, n: int,
+                half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
+                pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
+                bounds: np.ndarray, table_allowance: np.ndarray) -> bool:
+    """Object `obj` at (x, y, theta), the others as in `others` (`neighbours`: n objects, then
+    the obstacles): on the table and clear of all."""
+    c, s = math.cos(theta), math.sin(theta)
+    hx, hy = _half_extents(obj, c, s, half, is_disc)
     if (x - hx - bounds[0] + table_allowance[obj, 0] < 0.0
             or bounds[2] - x - hx + table_allowance[obj, 1] < 0.0
             or y - hy - bounds[1] + table_allowance[obj, 2] < 0.0
             or bounds[3] - y - hy + table_allowance[obj, 3] < 0.0):
         return False
-    n = len(parent)
-    for row in range(n + len(obstacle_poses)):
+    for row in range(len(others)):
         if row == obj:
             continue
-        if row < n:
-            ox, oy = parent[row, 0], parent[row, 1]
-        else:
-            ox, oy = obstacle_poses[row - n, 0], obstacle_poses[row - n, 1]
+        ox, oy = others[row, 0], others[row, 1]
         reach = bounding[obj] + bounding[row] + margin
         if (x - ox) ** 2 + (y - oy) ** 2 > reach * reach:
             continue
         allowed = pair_allowance[obj, row] if row < n else obstacle_allowance[obj, row - n]
         if _footprint_distance(x, y, c, s, half[obj, 0], half[obj, 1], is_disc[obj], ox, oy,
-                               turned[row, 0], turned[row, 1], half[row, 0], half[row, 1],
+                               others[row, 2], others[row, 3], half[row, 0], half[row, 1],
                                is_disc[row]) < margin - allowed:
             return False
     return True
@@ -225,60 +228,56 @@ def _pose_clear(obj: int, x: float, y: float, theta: float, parent: np.ndarray,
 
 @kernel
 def swept_pose_clear(obj: int, before: np.ndarray, change: np.ndarray, steps: int,
-                     parent: np.ndarray, turned: np.ndarray, half: np.ndarray,
-                     is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
-                     pair_allowance: np.ndarray, obstacle_allowance: np.ndarray, margin: float,
-                     bounds: np.ndarray, table_allowance: np.ndarray) -> bool:
+                     others: np.ndarray, n: int, half: np.ndarray, is_disc: np.ndarray,
+                     bounding: np.ndarray, pair_allowance: np.ndarray,
+                     obstacle_allowance: np.ndarray, margin: float, bounds: np.ndarray,
+                     table_allowance: np.ndarray) -> bool:
     """Object `obj` is clear at before + (j / steps) change (3,) for every j = 1..steps (the
-    last is the end pose), the others as in `parent` (their `headings` in `turned`)."""
+    last is the end pose), the others as in `others` (`neighbours`, of n objects)."""
     count = max(steps, 1)
     for j in range(count, 0, -1):          # the end pose first: it fails most often
         fraction = j / count
         if not _pose_clear(obj, before[0] + fraction * change[0],
                            before[1] + fraction * change[1], before[2] + fraction * change[2],
-                           parent, turned, half, is_disc, bounding, obstacle_poses,
-                           pair_allowance, obstacle_allowance, margin, bounds, table_allowance):
+                           others, n, half, is_disc, bounding, pair_allowance,
+                           obstacle_allowance, margin, bounds, table_allowance):
             return False
     return True
 
 
 @kernel
 def swept_poses_clear(parent: np.ndarray, moved: np.ndarray, before: np.ndarray,
-                       change: np.ndarray, steps: np.ndarray, half: np.ndarray,
-                       is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
-                       pair_allowance: np.ndarray, obstacle_allowance: np.ndarray,
-                       margin: float, bounds: np.ndarray, table_allowance: np.ndarray
-                       ) -> np.ndarray:
+                      change: np.ndarray, steps: np.ndarray, half: np.ndarray,
+                      is_disc: np.ndarray, bounding: np.ndarray, obstacle_poses: np.ndarray,
+                      pair_allowance: np.ndarray, obstacle_allowance: np.ndarray,
+                      margin: float, bounds: np.ndarray, table_allowance: np.ndarray
+                      ) -> np.ndarray:
     """(k,) swept_pose_clear of each moved[i] from before[i] by change[i] in steps[i]."""
-    turned = headings(parent, obstacle_poses)
+    others = neighbours(parent, obstacle_poses)
     ok = np.ones(len(moved), np.bool_)
     for i in range(len(moved)):
-        ok[i] = swept_pose_clear(moved[i], before[i], change[i], steps[i], parent, turned, half,
-                                 is_disc, bounding, obstacle_poses, pair_allowance,
-                                 obstacle_allowance, margin, bounds, table_allowance)
+        ok[i] = swept_pose_clear(moved[i], before[i], change[i], steps[i], others, len(parent),
+                                 half, is_disc, bounding, pair_allowance, obstacle_allowance,
+                                 margin, bounds, table_allowance)
     return ok
 
 
 @kernel
-def ball_path_clear(pushed: int, start: np.ndarray, end: np.ndarray, parent: np.ndarray,
-                    turned: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
-                    bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float) -> bool:
+def ball_path_clear(pushed: int, start: np.ndarray, end: np.ndarray, others: np.ndarray,
+                    half: np.ndarray, is_disc: np.ndarray, bounding: np.ndarray,
+                    clearance: float) -> bool:
     """The ball's path start-end (2,) keeps `clearance` from every object but `pushed` and
-    from the obstacles (their `headings` in `turned`)."""
-    n = len(parent)
-    for row in range(n + len(obstacle_poses)):
+    from the obstacles (`others`, their `neighbours` rows)."""
+    for row in range(len(others)):
         if row == pushed:
             continue
-        if row < n:
-            ox, oy = parent[row, 0], parent[row, 1]
-        else:
-            ox, oy = obstacle_poses[row - n, 0], obstacle_poses[row - n, 1]
+        ox, oy = others[row, 0], others[row, 1]
         # a segment farther from a centre than the bounding circle plus clearance is clear
         if (_segment_point(start[0], start[1], end[0], end[1], ox, oy)
                 > bounding[row] + clearance):
             continue
-        if _segment_footprint(start[0], start[1], end[0], end[1], ox, oy, turned[row, 0],
-                              turned[row, 1], half[row, 0], half[row, 1],
+        if _segment_footprint(start[0], start[1], end[0], end[1], ox, oy, others[row, 2],
+                              others[row, 3], half[row, 0], half[row, 1],
                               is_disc[row]) < clearance:
             return False
     return True
@@ -286,14 +285,15 @@ def ball_path_clear(pushed: int, start: np.ndarray, end: np.ndarray, parent: np.
 
 @kernel
 def ball_paths_clear(parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
-                      end: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
-                      bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float
-                      ) -> np.ndarray:
-    turned = headings(parent, obstacle_poses)
+                     end: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                     bounding: np.ndarray, obstacle_poses: np.ndarray, clearance: float
+                     ) -> np.ndarray:
+    """(k,) ball_path_clear of each ball path start[i]-end[i] pushing pushed[i]."""
+    others = neighbours(parent, obstacle_poses)
     ok = np.ones(len(pushed), np.bool_)
     for i in range(len(pushed)):
-        ok[i] = ball_path_clear(pushed[i], start[i], end[i], parent, turned, half, is_disc,
-                                bounding, obstacle_poses, clearance)
+        ok[i] = ball_path_clear(pushed[i], start[i], end[i], others, half, is_disc, bounding,
+                                clearance)
     return ok
 
 
@@ -317,11 +317,7 @@ def constraint_rows(first: np.ndarray, second: np.ndarray, tables: tuple) -> np.
                                                        is_disc[row])
                              - margin + obstacle_allow[k])
     for i in range(n):
-        if is_disc[i]:
-            hx = hy = half[i, 0]
-        else:
-            c, s = abs(math.cos(first[i, 2])), abs(math.sin(first[i, 2]))
-            hx, hy = c * half[i, 0] + s * half[i, 1], s * half[i, 0] + c * half[i, 1]
+        hx, hy = _half_extents(i, math.cos(first[i, 2]), math.sin(first[i, 2]), half, is_disc)
         x, y, row = first[i, 0], first[i, 1], pairs + obstacles + 4 * i
         values[row] = x - hx - bounds[0] + table_allow[i, 0]
         values[row + 1] = bounds[2] - x - hx + table_allow[i, 1]
@@ -475,6 +471,22 @@ def batch_push_geometry(before: np.ndarray, rates: np.ndarray, contact: np.ndarr
     return change, steps, start, end
 
 
+@inline_kernel
+def _turn_error(delta: float, period: float) -> float:
+    """A heading difference reduced to the shortest turn modulo `period` (0 for a disc's 0)."""
+    return (delta + period / 2) % period - period / 2 if period > 0 else 0.0
+
+
+@inline_kernel
+def _pose_error(x: float, y: float, theta: float, goal: np.ndarray, weight: float,
+                period: float) -> float:
+    """Weighted distance of a pose to `goal` (3,), its heading reduced modulo `period`
+    (rearrange.object_error on one pose)."""
+    dx, dy = goal[0] - x, goal[1] - y
+    dt = _turn_error(goal[2] - theta, period)
+    return math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
+
+
 @kernel
 def refused_pushes(primitives: np.ndarray, before: np.ndarray, refusals: np.ndarray,
                    period: float) -> np.ndarray:
@@ -486,8 +498,7 @@ def refused_pushes(primitives: np.ndarray, before: np.ndarray, refusals: np.ndar
         for r in range(len(refusals)):
             if primitives[i] != refusals[r, 0]:
                 continue
-            turn = before[i, 2] - refusals[r, 3]
-            turn = (turn + period / 2) % period - period / 2 if period > 0 else 0.0
+            turn = _turn_error(before[i, 2] - refusals[r, 3], period)
             if (math.hypot(before[i, 0] - refusals[r, 1], before[i, 1] - refusals[r, 2])
                     <= REFUSED_RADIUS and abs(turn) <= REFUSED_TURN):
                 refused[i] = True
@@ -552,20 +563,40 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.nda
     one (keeps_face_rule), and keep the ball's path in reach and clear of the others.
     `tables` are PlanningProblem.check_tables(). A numpy version spent about 60 us a call in
     per-call overhead, most of a REARRANGE search's time."""
+    others, stranded = state_tables(state, tables)
+    return _check_pushes(state, objects, before, change, steps, start, end, ok, tables, others,
+                         stranded)
+
+
+@kernel
+def state_tables(state: np.ndarray, tables: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """What pushes in `state` (n, 3) are checked against besides `tables`: its `neighbours`
+    and, with the face rule, its stranded_objects. A search over one object's pose computes
+    them once."""
+    collision, _, reach, _, face_rule, faces, _ = tables
+    stranded = stranded_objects(state, faces, reach) if face_rule else np.zeros(0, np.bool_)
+    return neighbours(state, collision[3]), stranded
+
+
+@kernel
+def _check_pushes(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
+                  change: np.ndarray, steps: np.ndarray, start: np.ndarray, end: np.ndarray,
+                  ok: np.ndarray, tables: tuple, others: np.ndarray, stranded: np.ndarray
+                  ) -> np.ndarray:
+    """pushes_valid_compiled with the state's tables given (state_tables)."""
     collision, ball_clearance, reach, reach_spacing, face_rule, faces, retreat_limit = tables
-    half, is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin, bounds, table_allow \
+    half, is_disc, bounding, _, pair_allow, obstacle_allow, margin, bounds, table_allow \
         = collision
     x0, y0, step, cells = reach
-    stranded = stranded_objects(state, faces, reach) if face_rule else np.zeros(0, np.bool_)
-    turned = headings(state, obstacles)
+    n = len(state)
     final = np.empty(3)
     for i in range(len(objects)):
         if not ok[i]:
             continue
         o = objects[i]
-        if not swept_pose_clear(o, before[i], change[i], steps[i], state, turned, half,
-                                is_disc, bounding, obstacles, pair_allow, obstacle_allow, margin,
-                                bounds, table_allow):
+        if not swept_pose_clear(o, before[i], change[i], steps[i], others, n, half, is_disc,
+                                bounding, pair_allow, obstacle_allow, margin, bounds,
+                                table_allow):
             ok[i] = False
             continue
         if face_rule:
@@ -575,8 +606,8 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.nda
                 ok[i] = False
                 continue
         ok[i] = (segment_reached(start[i], end[i], reach_spacing, x0, y0, step, cells)
-                 and ball_path_clear(o, start[i], end[i], state, turned, half, is_disc,
-                                     bounding, obstacles, ball_clearance))
+                 and ball_path_clear(o, start[i], end[i], others, half, is_disc, bounding,
+                                     ball_clearance))
     return ok
 
 
@@ -593,10 +624,11 @@ def pose_key(x: float, y: float, theta: float, weight: float, period: float) -> 
 
 
 @kernel
-def expand_pushes(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, goal: np.ndarray,
-            weight: float, period: float, longest: float, shortest: float,
-            fractions: np.ndarray, detours: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def expand_pushes(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray,
+                  goal: np.ndarray, weight: float, period: float, longest: float,
+                  shortest: float, fractions: np.ndarray, detours: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                             np.ndarray]:
     """The pushes to try on one object from each of `poses` (b, 3): per primitive (its pose
     change per metre of push, rates[primitive - 1]: x, y in the object frame, theta), the
     length that brings it closest to `goal` (closed form, the pose being affine in the length)
@@ -622,8 +654,7 @@ def expand_pushes(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, 
     for b in range(len(poses)):
         x, y, theta = poses[b, 0], poses[b, 1], poses[b, 2]
         c, s = math.cos(theta), math.sin(theta)
-        ex, ey, et = goal[0] - x, goal[1] - y, goal[2] - theta
-        et = (et + period / 2) % period - period / 2 if period > 0 else 0.0
+        ex, ey, et = goal[0] - x, goal[1] - y, _turn_error(goal[2] - theta, period)
         for primitive in primitives:
             rx, ry, rt = rates[primitive - 1, 0], rates[primitive - 1, 1], rates[primitive - 1, 2]
             ux, uy = c * rx - s * ry, s * rx + c * ry
@@ -637,11 +668,9 @@ def expand_pushes(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, 
                 if length < shortest:
                     continue
                 nx, ny, nt = x + length * ux, y + length * uy, theta + length * rt
-                dx, dy, dt = goal[0] - nx, goal[1] - ny, goal[2] - nt
-                dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
                 rows[k], kinds[k], lengths[k] = b, primitive, length
                 new[k, 0], new[k, 1], new[k, 2] = nx, ny, nt
-                errors[k] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
+                errors[k] = _pose_error(nx, ny, nt, goal, weight, period)
                 keys[k] = pose_key(nx, ny, nt, weight, period)
                 k += 1
     return rows[:k], kinds[:k], lengths[:k], new[:k], errors[:k], keys[:k]
@@ -649,13 +678,14 @@ def expand_pushes(poses: np.ndarray, rates: np.ndarray, primitives: np.ndarray, 
 
 @kernel
 def search_object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: float,
-                 period: float, tolerance: float, max_expansions: int, batch: int,
-                 primitives: np.ndarray, fractions: np.ndarray, detours: np.ndarray,
-                 refusals: np.ndarray, geometry: tuple, checks: tuple
-                 ) -> tuple[np.ndarray, np.ndarray, bool]:
+                       period: float, tolerance: float, max_expansions: int, batch: int,
+                       primitives: np.ndarray, fractions: np.ndarray, detours: np.ndarray,
+                       refusals: np.ndarray, geometry: tuple, checks: tuple
+                       ) -> tuple[np.ndarray, np.ndarray, bool]:
     """rearrange.object_path's search, compiled whole: each round pops `batch` nodes, expands
     them (expand_pushes), drops poses already seen and checks the rest (pushes_valid_compiled)
-    in one batch. `geometry` is PlanningProblem.geometry_tables(), `checks` its check_tables().
+    in one batch (_check_pushes, the state's tables made once). `geometry` is
+    PlanningProblem.geometry_tables(), `checks` its check_tables().
 
     Returns:
         the path's primitives and lengths, and whether it reached the goal.
@@ -673,15 +703,13 @@ def search_object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: 
     depths = np.empty(capacity, np.int64)
     poses[0] = state[index]
     parents[0], depths[0] = -1, 0
-    dx, dy = goal[0] - poses[0, 0], goal[1] - poses[0, 1]
-    dt = goal[2] - poses[0, 2]
-    dt = (dt + period / 2) % period - period / 2 if period > 0 else 0.0
-    errors[0] = math.sqrt(dx ** 2 + dy ** 2 + (weight * dt) ** 2)
+    errors[0] = _pose_error(poses[0, 0], poses[0, 1], poses[0, 2], goal, weight, period)
     if errors[0] <= tolerance:
         return np.zeros(0, np.int64), np.zeros(0), True
     size, best = 1, 0
     queue = [(errors[0], 0)]
     seen = {pose_key(poses[0, 0], poses[0, 1], poses[0, 2], weight, period)}
+    others, stranded = state_tables(state, checks)   # the other objects never move here
     expansions = 0
     while len(queue) > 0 and expansions < max_expansions:
         count = min(batch, len(queue))
@@ -706,8 +734,8 @@ def search_object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: 
             half_length, max_substep, ball_radius, clearance)
         ok = ((length[tried] <= longest + 1e-9)
               & ~refused_pushes(kind[tried], before, refusals, period))
-        valid = tried[pushes_valid_compiled(state, objects, before, change, steps, start, end,
-                                            ok, checks)]
+        valid = tried[_check_pushes(state, objects, before, change, steps, start, end, ok,
+                                    checks, others, stranded)]
         for k in valid[np.argsort(error[valid], kind="mergesort")]:
             if keys[k] in seen:
                 continue
