@@ -902,7 +902,7 @@ class _TsrrtSearch(_Search):
         object moved 2 mm in from the edge comes within the margin of its neighbour in a
         row along that edge (tset12's plates, 0.105 m apart), and each of the two then
         stands in the other's way, a cycle that only parking could break. 32 tset12 seeds
-        of 10 s: 15.2 % above the bound (median) against 18.4 %, 7 within 5 % against 2."""
+        of 10 s: 14.6 % above the bound (median) against 18.4 %, 7 within 5 % against 2."""
         problem = self.problem
         arrangement, target = target, inset_from_edges(problem, target, TARGET_INSET)
 
