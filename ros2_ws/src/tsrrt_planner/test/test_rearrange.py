@@ -351,25 +351,6 @@ def test_targets_on_an_edge_are_aimed_at_from_inside(problem):
     np.testing.assert_array_equal(inset[:, 2], bound.state[:, 2])
 
 
-def test_a_row_along_an_edge_is_no_cycle_but_its_inset_aims_are(problem):
-    """Two plates side by side at the margin along an edge: moved in from the edges, the
-    corner plate comes within the margin of its neighbour, and the two would stand in each
-    other's way; REARRANGE therefore orders them by the arrangement itself."""
-    x_min, _, _, y_max = problem.scenario.table.bounds
-    corner, beside = (problem.objects.ids.index(name) for name in ("plate_1", "plate_2"))
-    radius = problem.objects.half_length[corner]
-    arrangement = problem.start.copy()
-    arrangement[corner, :2] = x_min + radius, y_max - radius
-    arrangement[beside, :2] = x_min + 3 * radius + problem.checker.margin, y_max - radius
-    state = arrangement.copy()
-    state[[corner, beside], 1] -= 0.12   # both come straight from the table's middle
-    pending = [corner, beside]
-    aims = inset_from_edges(problem, arrangement, 0.002)
-    assert corridor_blocks(problem, state, aims, pending)[corner, beside]
-    assert corridor_blocks(problem, state, aims, pending)[beside, corner]
-    assert not corridor_blocks(problem, state, arrangement, pending).any()
-
-
 def test_runs_of_short_pushes_are_shortened_validly():
     scenario = load_scenario("tset3")
     problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))

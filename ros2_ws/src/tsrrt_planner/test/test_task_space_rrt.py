@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario, parse_scenario
 from tsrrt_planner.bench import default_models, jittered_problem
 from tsrrt_planner.errors import Cancelled, PlannerError
@@ -532,6 +533,37 @@ def test_polishing_turns_a_box_before_pushing_it_in_beside_a_neighbour(clean):
 def tset6() -> PlanningProblem:
     scenario = load_scenario("tset6")
     return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+
+
+def test_rearrange_places_a_row_along_an_edge_without_parking(tset6):
+    """Two plates go to a row along the far edge, side by side at the margin. Aimed 2 mm in
+    from the edges, the corner plate would come within the margin of its neighbour and each
+    would wait for the other; ordered by the arrangement itself, both go straight there (with
+    the inset aims: 8 parkings, 20 pushes, one plate 2.4 cm short)."""
+    poses = {"plate_1": (0.57, 0.09, 0.0), "plate_2": (0.465, 0.09, 0.0),
+             "plate_3": (0.33, -0.21, 0.0), "plate_4": (0.33, 0.21, 0.0),
+             "platter_1": (0.50, -0.15, 0.0), "platter_2": (0.40, -0.02, 0.0)}
+    scenario = tset6.scenario
+    objects = tuple(replace(spec, pose=Pose2D(*poses[spec.id]))
+                    for spec in scenario.objects)
+    problem = PlanningProblem(replace(scenario, objects=objects),
+                              learn_all(scenario.objects, seed=0))
+    corner, beside = (problem.objects.ids.index(name) for name in ("plate_1", "plate_2"))
+    _, _, x_max, y_max = scenario.table.bounds
+    radius = problem.objects.half_length[corner]
+    arrangement = problem.start.copy()
+    arrangement[corner, :2] = x_max - radius, y_max - radius
+    arrangement[beside, :2] = x_max - 3 * radius - problem.checker.margin, y_max - radius
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    search = _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), None, 1000, None, None,
+                          weights, target=None)
+    parkings = []
+    park = search.park
+    search.park = lambda *args: parkings.append(args) or park(*args)
+    end = search.tree.states[search.rearrange(0, arrangement)]
+    assert not parkings
+    np.testing.assert_allclose(end[[corner, beside], :2], arrangement[[corner, beside], :2],
+                               atol=0.004)
 
 
 def test_polishing_looks_past_the_pushes_that_would_cross_the_edge(tset6):
