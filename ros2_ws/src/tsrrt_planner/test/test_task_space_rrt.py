@@ -68,6 +68,20 @@ def replay(problem: PlanningProblem, result) -> np.ndarray:
     return np.array(states)
 
 
+def test_one_push_applied_is_the_models_prediction(problem):
+    """`apply` repeats `predict`'s arithmetic on scalars, for speed; the two must agree."""
+    rng = np.random.default_rng(3)
+    state = problem.start.copy()
+    state[:, 2] = rng.uniform(-np.pi, np.pi, problem.n)
+    for o, p in zip(problem.action_objects, problem.action_primitives, strict=True):
+        length = float(rng.uniform(0.005, 0.08))
+        after = problem.apply(state, int(o), int(p), length)
+        predicted = problem.predict(state, np.array([o]), np.array([p]), np.array([length]))
+        np.testing.assert_allclose(after[o], predicted[0], rtol=0, atol=1e-12)
+        others = np.arange(problem.n) != o
+        np.testing.assert_array_equal(after[others], state[others])
+
+
 @pytest.mark.parametrize("mode", MODES)
 def test_plans_are_valid_and_consistent_with_the_models(problem, bound, mode):
     result = TASK_SPACE_RRT(problem, mode, seed=1, time_budget_s=None, max_nodes=150,
