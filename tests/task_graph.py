@@ -35,7 +35,6 @@ SMALL_SCENARIO = DATA / "two_boxes.yaml"
 SMALL_MODELS = DATA / "two_boxes_models.yaml"
 RESULT_NAMES = {value: name for name, value in vars(RunTask.Result).items()
                 if name.isupper() and isinstance(value, int)}
-HANDSHAKE = "handshake"       # no planner, no object: the goal fails at once
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STARTUP_TIMEOUT_S = 120.0       # a node's servers to appear on a loaded 2-core machine
@@ -127,10 +126,9 @@ class TaskGraph:
             assert client.wait_for_service(timeout_sec=STARTUP_TIMEOUT_S), \
                 f"{client.srv_name} did not come up:\n{self.logs()}"
         # Goals that fail at once (no such planner, no such object) until each server answers.
-        self.probe.handshake(self.run_client, RunTask.Goal(planner=HANDSHAKE))
-        self.probe.handshake(self.plan_client, PlanTask.Goal(planner=HANDSHAKE))
-        self.probe.handshake(self.execute_client, ExecutePrimitive.Goal(object_id=HANDSHAKE,
-                                                                        primitive=1))
+        self.probe.handshake(self.run_client, RunTask.Goal)
+        self.probe.handshake(self.plan_client, PlanTask.Goal)
+        self.probe.handshake(self.execute_client, ExecutePrimitive.Goal)
         self.wait_for_perception()
 
     def wait_for_perception(self, timeout: float = STARTUP_TIMEOUT_S) -> ObjectStateArray:

@@ -24,7 +24,7 @@ rclpy = pytest.importorskip("rclpy")
 from action_msgs.msg import GoalStatus  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo  # noqa: E402
-from task_graph import DATA, HANDSHAKE, TaskGraph, describe, executed_pushes  # noqa: E402
+from task_graph import DATA, TaskGraph, describe, executed_pushes  # noqa: E402
 
 from tsrrt_common.robot_model import OBSERVE_POSTURE  # noqa: E402
 from tsrrt_interfaces.action import ExecutePrimitive, PlanTask, RunTask  # noqa: E402
@@ -94,7 +94,7 @@ def test_planner_killed_mid_task_resumes_with_its_models(graph: TaskGraph, figur
     planner = graph.start_planner()
     assert planner.wait_for_log("(12 loaded)", timeout=120.0), planner.log()
     # The old server's endpoints linger in discovery; the new one must answer.
-    graph.probe.handshake(graph.run_client, RunTask.Goal(planner=HANDSHAKE))
+    graph.probe.handshake(graph.run_client, RunTask.Goal)
     figures["restart_s"] = round(time.monotonic() - began, 1)
     # The killed planner's pushes may have finished the plan before the kill took effect, and
     # a converged state is then rightly left alone: what counts is the task's start.
