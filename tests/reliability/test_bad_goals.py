@@ -75,7 +75,7 @@ CASES: list[tuple[str, str, Any, str, str]] = [
     ("unknown object", "/executor/execute_primitive", push("stapler", 1), "UNKNOWN_OBJECT",
      "no object 'stapler' in /perception/objects; known: ['eraser', 'remote', 'scale']"),
     ("empty object id", "/executor/execute_primitive", push("", 1), "UNKNOWN_OBJECT",
-     "no object '' in /perception/objects"),
+     "the goal names no object (empty object_id)"),
     ("primitive 0", "/executor/execute_primitive", push("scale", 0), "INVALID_GOAL",
      "primitive 0 is not one of [1, 2, 3, 4, 5, 6] for a box"),
     ("primitive 7", "/executor/execute_primitive", push("scale", 7), "INVALID_GOAL",

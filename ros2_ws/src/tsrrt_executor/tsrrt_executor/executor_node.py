@@ -1,7 +1,8 @@
 """executor_node: the ExecutePrimitive action on top of the ROS-free core (primitive_plan).
 
 Action server /executor/execute_primitive (tsrrt_interfaces/action/ExecutePrimitive):
-1. checks   <- /joint_states and /arm_controller/follow_joint_trajectory must be alive
+1. checks   <- an empty object id is UNKNOWN_OBJECT at once (clients send it as a handshake);
+               /joint_states and /arm_controller/follow_joint_trajectory must be alive
                (else CONTROLLER_UNAVAILABLE); the object id must be in the latest
                /perception/objects (else UNKNOWN_OBJECT, listing the known ids; no waiting for a
                settled observation); the primitive must exist for its shape and the push length be
@@ -384,8 +385,9 @@ class ExecutorNode(Node):
                 f"{np.round(result.displacement, 4).tolist()} (wall s: {stages})")
         except GoalFailed as failure:
             result.error_code, result.error_msg = failure.code, str(failure)
-            self.get_logger().warning(
-                f"primitive {goal.primitive} on {goal.object_id!r}: {failure}")
+            # A goal naming no object is a client's handshake, answered as expected.
+            log = self.get_logger().warning if goal.object_id else self.get_logger().debug
+            log(f"primitive {goal.primitive} on {goal.object_id!r}: {failure}")
             if not shutting_down():   # else the node and the goal's handle are gone
                 if failure.code == Result.CANCELED:
                     goal_handle.canceled()
@@ -412,6 +414,8 @@ class ExecutorNode(Node):
 
     def _run(self, goal_handle, result: ExecutePrimitive.Result) -> None:
         goal = goal_handle.request
+        if not goal.object_id:   # also a client's handshake: answered without waiting on anything
+            raise GoalFailed(Result.UNKNOWN_OBJECT, "the goal names no object (empty object_id)")
         self._feedback(goal_handle, Feedback.PHASE_PLANNING, 0.0)
         # Read after the goal came: the arm may have moved since this node last moved it.
         q_current = self._fresh_joint_positions(newer_than=time.monotonic())

@@ -155,6 +155,7 @@ def _stop_requested(goal_handle) -> bool:
 
 
 OBSERVE_ATTEMPTS = 3   # settled observations an object may be missing from before the task stops
+HANDSHAKE_RESEND_S = 1.0   # a handshake goal unanswered this long is sent again
 
 
 class RosTaskEnvironment:
@@ -218,6 +219,7 @@ class PlannerNode(Node):
         threading.Thread(target=self._compute_bound, name="lower_bound", daemon=True).start()
         self.unreachable: set[str] = set()   # objects left where they stand: out of reach
         self._busy = threading.Lock()
+        self._executor_answered = False   # since this goal began (see _handshake_executor)
         group = ReentrantCallbackGroup()
 
         self.models_publisher = self.create_publisher(ForwardModelArray, "/planner/models",
@@ -441,6 +443,8 @@ class PlannerNode(Node):
         if not self.executor_client.wait_for_server(timeout_sec=self._param("server_timeout_s")):
             raise GoalFailed("EXECUTOR_UNAVAILABLE",
                              "the executor's /executor/execute_primitive is not available")
+        if not self._executor_answered:
+            self._handshake_executor()
         goal = ExecutePrimitive.Goal(object_id=object_id, primitive=primitive,
                                      push_length=float(push_length))
         sent = self.executor_client.send_goal_async(goal)
@@ -464,6 +468,33 @@ class PlannerNode(Node):
                              f"{self._param('push_timeout_s'):.0f} s")
         return result_future.result().result
 
+    def _handshake_executor(self) -> None:
+        """Before a goal's first push, goals naming no object until one is answered in full.
+
+        wait_for_server sees only that the executor exists; rmw_fastrtps drops the answers of a
+        server that has not yet matched this client's readers (a restarted executor), and a push
+        whose answer is lost cannot be sent again, since it may be running. A goal naming no
+        object fails at once and is safe to repeat."""
+        timeout = self._param("server_timeout_s")
+        deadline = time.monotonic() + timeout
+        sent: list[rclpy.task.Future] = []
+        while time.monotonic() < deadline:
+            _raise_if_shutting_down()
+            sent.append(self.executor_client.send_goal_async(ExecutePrimitive.Goal()))
+            answered = next((f for f in sent if f.done()), None)
+            if answered is None and wait_for_future(sent[-1], HANDSHAKE_RESEND_S):
+                answered = sent[-1]
+            if answered is None:
+                continue
+            handle = answered.result()
+            if not handle.accepted or wait_for_future(handle.get_result_async(),
+                                                      HANDSHAKE_RESEND_S):
+                self._executor_answered = True
+                return
+        raise GoalFailed("EXECUTOR_UNAVAILABLE",
+                         f"the executor did not answer {len(sent)} handshake goals within "
+                         f"{timeout:g} s")
+
     # ------------------------------------------------------------------ actions
     def _accept_one(self, goal: object) -> GoalResponse:
         if self._busy.locked():
@@ -480,6 +511,7 @@ class PlannerNode(Node):
             result.error_msg = "another task is running"
             goal_handle.abort()
             return result
+        self._executor_answered = False
         try:
             work()
             result.error_code = result.SUCCESS
