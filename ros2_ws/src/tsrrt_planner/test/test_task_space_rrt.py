@@ -13,13 +13,14 @@ import pytest
 
 from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario, parse_scenario
-from tsrrt_planner.bench import default_models, jittered_problem
+from tsrrt_planner.bench import default_models, jittered_problem, resolve_scenario
 from tsrrt_planner.errors import Cancelled, PlannerError
 from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap, swap_refine
 from tsrrt_planner.model_learning import ModelStore
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
+    GD_FAILURES_TOLERATED,
     MODES,
     PAIR_COST_TOLERANCE,
     TASK_SPACE_RRT,
@@ -326,6 +327,31 @@ def test_directgd_runs_more_often_while_the_best_node_is_far_from_every_target(t
     assert search.gd_period() == PlannerConfig().gd_period // 4
     search.best_cost = cost
     assert search.gd_period() == PlannerConfig().gd_period
+
+
+def test_directgd_backs_off_after_descents_that_end_infeasible(tset6):
+    """tset12's 36-DOF descents from its start end inside an overlap after gd_iterations;
+    past the few tolerated in a row, each such descent doubles the wait for the next, and a
+    feasible one (tset6) resets it."""
+    scenario = resolve_scenario("tset12")
+    tset12 = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    weights = np.where(tset12.objects.is_disc, 0.0, tset12.objects.half_length)
+    search = _TsrrtSearch(tset12, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
+                          target=tset12.start)
+    search.best_cost = search.targets[0].cost   # near the target: the plain period
+    targets = len(search.targets)
+    for failures in range(1, GD_FAILURES_TOLERATED + 3):
+        search.descend_from(0)
+        assert search.gd_failures == failures
+        assert search.gd_period() == (2 ** max(failures - GD_FAILURES_TOLERATED, 0)
+                                      * PlannerConfig().gd_period)
+    assert len(search.targets) == targets
+    weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
+    search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
+                          target=None)
+    search.gd_failures = 3
+    search.descend_from(0)
+    assert search.gd_failures == 0 and search.targets
 
 
 @pytest.mark.parametrize("answers_before_cancel", [0, 2])
