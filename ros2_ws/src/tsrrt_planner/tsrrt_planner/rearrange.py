@@ -26,6 +26,7 @@ it is applied to, so a path added to the tree is consistent with the models and 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import cache
 
 import numpy as np
 
@@ -98,6 +99,15 @@ def compile_kernels(problem: PlanningProblem) -> None:
     object_path(problem, problem.start, 0, goal, 1.0, lambda: None, max_expansions=1)
 
 
+@cache
+def sweep_fractions(samples: int) -> np.ndarray:
+    """np.linspace(0, 1, samples), made once (read-only): a 10-s tset12 search asks for
+    some 20,000 sweeps, and linspace took half of straight_sweep's time."""
+    fractions = np.linspace(0.0, 1.0, samples)
+    fractions.flags.writeable = False
+    return fractions
+
+
 def footprints_clear(problem: PlanningProblem, rows_a: np.ndarray, poses_a: np.ndarray,
                      rows_b: np.ndarray, poses_b: np.ndarray, slack: float = 0.0) -> np.ndarray:
     """(P,) True where object rows_a at poses_a (P, 3) keeps the margin (less `slack`) from
@@ -136,7 +146,7 @@ def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndar
     if not pairs:
         return blocks
     rows_i, rows_j = (np.array(side) for side in zip(*pairs, strict=True))
-    fractions = np.linspace(0.0, 1.0, samples)
+    fractions = sweep_fractions(samples)
     k = len(pairs)
     sweep = np.repeat(state[rows_j], samples, 0)  # (k * samples, 3)
     change = target[rows_j] - state[rows_j]
@@ -213,7 +223,7 @@ def straight_sweep(state: np.ndarray, target: np.ndarray, index: int,
                    samples: int = 8) -> np.ndarray:
     """Poses (samples, 3) of object `index` going straight from its pose in `state` to its
     target position at its current heading (the corridor it needs, start included)."""
-    fractions = np.linspace(0.0, 1.0, samples)[:, None]
+    fractions = sweep_fractions(samples)[:, None]
     sweep = np.repeat(state[index][None], samples, 0)
     sweep[:, :2] += fractions * (target[index, :2] - state[index, :2])
     return sweep
