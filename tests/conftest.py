@@ -156,8 +156,7 @@ def failing_goal(goal_type: type) -> Any:
     failing = {RunTask.Goal: lambda: RunTask.Goal(planner=HANDSHAKE),
                PlanTask.Goal: lambda: PlanTask.Goal(planner=HANDSHAKE),
                LearnModels.Goal: lambda: LearnModels.Goal(object_ids=[HANDSHAKE]),
-               ExecutePrimitive.Goal: lambda: ExecutePrimitive.Goal(object_id=HANDSHAKE,
-                                                                    primitive=1),
+               ExecutePrimitive.Goal: ExecutePrimitive.Goal,   # no object: answered at once
                FollowJointTrajectory.Goal: FollowJointTrajectory.Goal}   # no joints: refused
     return failing[goal_type]()
 
