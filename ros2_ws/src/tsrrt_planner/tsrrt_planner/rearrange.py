@@ -229,16 +229,15 @@ def straight_sweep(state: np.ndarray, target: np.ndarray, index: int,
     return sweep
 
 
-def crosses_sweep(problem: PlanningProblem, index: int, poses: np.ndarray, other: int,
-                  sweep: np.ndarray) -> np.ndarray:
-    """(k,) True where object `index` at poses (k, 3) comes closer than the margin to object
-    `other` at any of the poses (m, 3) of its sweep."""
-    k, m = len(poses), len(sweep)
-    if k == 0:
-        return np.zeros(0, bool)
-    clear = footprints_clear(problem, np.full(k * m, index), np.repeat(poses, m, 0),
-                             np.full(k * m, other), np.tile(sweep, (k, 1)))
-    return ~clear.reshape(k, m).all(axis=1)
+def crosses_sweeps(problem: PlanningProblem, index: int, poses: np.ndarray,
+                   others: np.ndarray, sweeps: np.ndarray) -> np.ndarray:
+    """(k, m) True where object `index` at poses (k, 3) comes closer than the margin to object
+    others[j] (m,) at any of the poses sweeps[j] (m, s, 3) of its sweep: one batched check."""
+    k, (m, s) = len(poses), sweeps.shape[:2]
+    clear = footprints_clear(problem, np.full(k * m * s, index), np.repeat(poses, m * s, 0),
+                             np.tile(np.repeat(others, s), k),
+                             np.tile(sweeps.reshape(m * s, 3), (k, 1)))
+    return ~clear.reshape(k, m, s).all(axis=2)
 
 
 def clear_of_way(problem: PlanningProblem, state: np.ndarray, target: np.ndarray, index: int,
@@ -248,8 +247,8 @@ def clear_of_way(problem: PlanningProblem, state: np.ndarray, target: np.ndarray
     ok = footprints_clear(problem, np.full(len(poses), index), poses, np.full(len(poses), blocked),
                           np.repeat(target[blocked][None], len(poses), 0))
     alive = np.nonzero(ok)[0]
-    ok[alive] = ~crosses_sweep(problem, index, poses[alive], blocked,
-                               straight_sweep(state, target, blocked))
+    ok[alive] = ~crosses_sweeps(problem, index, poses[alive], np.array([blocked]),
+                                straight_sweep(state, target, blocked)[None])[:, 0]
     return ok
 
 
@@ -277,16 +276,14 @@ def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarra
     poses = poses[ok]
     others = np.array([j for j in pending if j not in (index, blocked)], int)
     k, m = len(poses), len(others)
-    # every pose against every other pending object's target and the poses of its sweep, in
-    # two batched checks (one per object took half of tset12's search)
+    # every pose against every other pending object's target and its sweep, in two batched
+    # checks (two per object took half of tset12's search)
     on_targets = (~footprints_clear(problem, np.full(k * m, index), np.repeat(poses, m, 0),
                                     np.tile(others, k), np.tile(target[others], (k, 1)))
                   ).reshape(k, m).sum(axis=1)
-    sweeps = np.array([straight_sweep(state, target, j) for j in others]).reshape(-1, 3)
-    samples = len(sweeps) // max(m, 1)
-    clear = footprints_clear(problem, np.full(k * len(sweeps), index),
-                             np.repeat(poses, len(sweeps), 0),
-                             np.tile(np.repeat(others, samples), k), np.tile(sweeps, (k, 1)))
-    crossed = (~clear.reshape(k, m, samples).all(axis=2)).sum(axis=1)
+    crossed = np.zeros(k, int)
+    if m:
+        sweeps = np.array([straight_sweep(state, target, j) for j in others])
+        crossed = crosses_sweeps(problem, index, poses, others, sweeps).sum(axis=1)
     distance = np.linalg.norm(poses[:, :2] - state[index, :2], axis=1)
     return poses[np.lexsort((distance, crossed, on_targets))]
