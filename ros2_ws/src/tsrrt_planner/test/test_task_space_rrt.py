@@ -56,6 +56,14 @@ def bound(problem):
     return lower_bound(problem, starts=4)
 
 
+def tsrrt_search(problem: PlanningProblem, max_nodes: int = 100,
+                 target: np.ndarray | None = None) -> _TsrrtSearch:
+    """The tsrrt search itself, for tests of its steps (weights as TASK_SPACE_RRT gives them)."""
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    return _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), None, max_nodes, None, None,
+                        weights, target=target)
+
+
 def replay(problem: PlanningProblem, result) -> np.ndarray:
     """States of the plan recomputed from the models, checking every push on the way."""
     index = {object_id: i for i, object_id in enumerate(problem.objects.ids)}
@@ -306,9 +314,7 @@ def test_directgd_keeps_an_object_the_arm_cannot_get_behind_on_its_line(tset6):
     reach; across it the platter is free, which lets the descent reach targets as good as the
     free one's."""
     count, direction = tset6.stranded_pushes(tset6.start)
-    weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
-    search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
-                          target=None)
+    search = tsrrt_search(tset6)
     state, cost = search.directgd(0)
     moved = state[5, :2] - tset6.start[5, :2]
     assert abs(moved @ direction[5]) < 1e-6
@@ -318,9 +324,7 @@ def test_directgd_keeps_an_object_the_arm_cannot_get_behind_on_its_line(tset6):
 
 
 def test_directgd_runs_more_often_while_the_best_node_is_far_from_every_target(tset6):
-    weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
-    search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
-                          target=None)
+    search = tsrrt_search(tset6)
     state, cost = search.directgd(0)
     search.add_target(state, cost)
     assert search.best_cost > cost + 0.05 * abs(cost)    # the start, 78 % above the bound
@@ -335,9 +339,7 @@ def test_directgd_backs_off_after_descents_that_end_infeasible(tset6):
     feasible one (tset6) resets it."""
     scenario = resolve_scenario("tset12")
     tset12 = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
-    weights = np.where(tset12.objects.is_disc, 0.0, tset12.objects.half_length)
-    search = _TsrrtSearch(tset12, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
-                          target=tset12.start)
+    search = tsrrt_search(tset12, target=tset12.start)
     search.best_cost = search.targets[0].cost   # near the target: the plain period
     targets = len(search.targets)
     for failures in range(1, GD_FAILURES_TOLERATED + 3):
@@ -346,9 +348,7 @@ def test_directgd_backs_off_after_descents_that_end_infeasible(tset6):
         assert search.gd_period() == (2 ** max(failures - GD_FAILURES_TOLERATED, 0)
                                       * PlannerConfig().gd_period)
     assert len(search.targets) == targets
-    weights = np.where(tset6.objects.is_disc, 0.0, tset6.objects.half_length)
-    search = _TsrrtSearch(tset6, "tsrrt", 0, PlannerConfig(), None, 100, None, None, weights,
-                          target=None)
+    search = tsrrt_search(tset6)
     search.gd_failures = 3
     search.descend_from(0)
     assert search.gd_failures == 0 and search.targets
@@ -594,9 +594,7 @@ def test_rearrange_places_a_row_along_an_edge_without_parking(tset6):
     arrangement = problem.start.copy()
     arrangement[corner, :2] = x_max - radius, y_max - radius
     arrangement[beside, :2] = x_max - 3 * radius - problem.checker.margin, y_max - radius
-    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
-    search = _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), None, 1000, None, None,
-                          weights, target=None)
+    search = tsrrt_search(problem, max_nodes=1000)
     parkings = []
     park = search.park
     search.park = lambda *args: parkings.append(args) or park(*args)
