@@ -40,6 +40,10 @@ from tsrrt_sim.image_messages import image_to_numpy  # noqa: E402
 
 SCENARIO = "obstacle"
 Result = FollowJointTrajectory.Result
+# A trajectory that must still run when the test acts on it: a day of simulated time. At full sim
+# speed (about 30 times real time here) 60 s and later 600 s each once ended first on a CI machine,
+# the second before a goal sent straight after could preempt it.
+LONG_S = 86_400.0
 
 
 class SimProbe:
@@ -179,8 +183,7 @@ def test_bad_goals_are_aborted_with_a_code_and_reason(probe, case, goal, code, r
 
 
 def test_new_goal_preempts_the_running_one(probe):
-    # Long in sim time, so that at full sim speed it is still running when the second arrives.
-    first = probe.send_goal(goal_to([shifted(0.5)], [600.0]))
+    first = probe.send_goal(goal_to([shifted(0.5)], [LONG_S]))
     first_result = first.get_result_async()
     second = probe.execute(goal_to([READY_POSTURE], [2.0])).result
     assert probe.wait_for(first_result).result.error_code == Result.PREEMPTED
@@ -188,10 +191,8 @@ def test_new_goal_preempts_the_running_one(probe):
 
 
 def test_bad_goal_leaves_the_running_one_alone(probe):
-    # Long in sim time (600 s), so that it is still running when the refusal comes back even on
-    # a loaded machine (60 s simulated, about 1.5 s at full sim speed, once was not); it is
-    # cancelled afterwards, which only a goal the refusal left running can be.
-    running = probe.send_goal(goal_to([shifted(0.3)], [600.0]))
+    # Cancelled afterwards, which only a goal the refusal left running can be.
+    running = probe.send_goal(goal_to([shifted(0.3)], [LONG_S]))
     running_result = running.get_result_async()
     refused = probe.execute(goal_to([shifted(math.nan)], [1.0])).result
     assert refused.error_code == Result.INVALID_GOAL
@@ -202,8 +203,7 @@ def test_bad_goal_leaves_the_running_one_alone(probe):
 
 
 def test_cancel_is_accepted(probe):
-    # Long in sim time, so that at full sim speed the goal is still running when cancelled.
-    handle = probe.send_goal(goal_to([shifted(0.5)], [600.0]))
+    handle = probe.send_goal(goal_to([shifted(0.5)], [LONG_S]))
     assert handle.accepted
     cancel = probe.wait_for(handle.cancel_goal_async())
     assert len(cancel.goals_canceling) == 1
@@ -282,7 +282,7 @@ def test_sigterm_during_a_trajectory_shuts_the_node_down_cleanly(sim, probe):
     or its thread keeps the process from exiting until it is killed. It stops the module's sim:
     only the test after it, which starts its own, may follow."""
     feedback: list = []
-    running = probe.send_goal(goal_to([shifted(0.5)], [600.0]), feedback)
+    running = probe.send_goal(goal_to([shifted(0.5)], [LONG_S]), feedback)
     assert running.accepted
     result = running.get_result_async()
     assert probe.spin_until(lambda: bool(feedback)), "the trajectory never started"
