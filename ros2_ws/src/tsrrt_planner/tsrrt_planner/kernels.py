@@ -488,6 +488,61 @@ def _pose_error(x: float, y: float, theta: float, goal: np.ndarray, weight: floa
 
 
 @kernel
+def steer_candidates(state: np.ndarray, target: np.ndarray, weights: np.ndarray,
+                     objects: np.ndarray, primitives: np.ndarray, rates: np.ndarray,
+                     period: np.ndarray, shortest: float, longest: np.ndarray,
+                     fractions: np.ndarray, min_gain: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """STEER's candidate pushes (task_space_rrt.steer_push) from `state` (n, 3) towards
+    `target`: for each (object, primitive) of `objects`, `primitives` (k,) whose closed-form
+    length (the one that minimises rho, the pose being affine in the length; weights (n,) on
+    the heading, reduced modulo `period`) is at least `shortest`, that length clipped to the
+    object's `longest` times each of `fractions` (at least `shortest`). Returns the candidates'
+    objects, primitives and lengths, fraction by fraction, and the indices into them, by
+    falling rho^2 gain (stable), of those that remove more than `min_gain` of their object's
+    squared error. Compiled: numpy spent most of a call in the overhead of a dozen small
+    array operations, and STEER and the shortcuts call it thousands of times a second."""
+    k = len(objects)
+    ux, uy, ut = np.empty(k), np.empty(k), np.empty(k)
+    ex, ey, et = np.empty(k), np.empty(k), np.empty(k)
+    w2 = np.empty(k)
+    ideal = np.empty(k)
+    usable = np.zeros(k, np.bool_)
+    for i in range(k):
+        o, slot = objects[i], primitives[i] - 1
+        c, s = math.cos(state[o, 2]), math.sin(state[o, 2])
+        rx, ry = rates[o, slot, 0], rates[o, slot, 1]
+        ux[i], uy[i], ut[i] = c * rx - s * ry, s * rx + c * ry, rates[o, slot, 2]
+        ex[i], ey[i] = target[o, 0] - state[o, 0], target[o, 1] - state[o, 1]
+        et[i] = _turn_error(target[o, 2] - state[o, 2], period[o])
+        w2[i] = weights[o] ** 2
+        along = ex[i] * ux[i] + ey[i] * uy[i] + w2[i] * et[i] * ut[i]
+        norm = max(ux[i] * ux[i] + uy[i] * uy[i] + w2[i] * ut[i] * ut[i], 1e-12)
+        ideal[i] = min(along / norm, longest[o])
+        usable[i] = along / norm >= shortest
+    rows = np.nonzero(usable)[0]
+    m = len(rows)
+    total = m * len(fractions)
+    out_objects = np.empty(total, np.int64)
+    out_primitives = np.empty(total, np.int64)
+    lengths = np.empty(total)
+    gain = np.empty(total)
+    floor = np.empty(total)
+    for f in range(len(fractions)):
+        for r in range(m):
+            i, j = rows[r], f * m + r
+            length = max(ideal[i] * fractions[f], shortest)
+            out_objects[j], out_primitives[j], lengths[j] = objects[i], primitives[i], length
+            before = ex[i] * ex[i] + ey[i] * ey[i] + w2[i] * (et[i] * et[i])
+            dx, dy, dt = ex[i] - length * ux[i], ey[i] - length * uy[i], et[i] - length * ut[i]
+            gain[j] = before - (dx * dx + dy * dy + w2[i] * (dt * dt))
+            floor[j] = max(min_gain * before, 1e-10)
+    order = np.argsort(-gain, kind="mergesort")
+    kept = order[gain[order] > floor[order]]
+    return out_objects, out_primitives, lengths, kept
+
+
+@kernel
 def refused_pushes(primitives: np.ndarray, before: np.ndarray, refusals: np.ndarray,
                    period: float) -> np.ndarray:
     """(k,) True for pushes of one object with `primitives` (k,) from poses `before` (k, 3)

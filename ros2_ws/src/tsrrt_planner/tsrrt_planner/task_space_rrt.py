@@ -39,6 +39,7 @@ from scipy.optimize import linear_sum_assignment
 
 from tsrrt_executor.push_primitives import ROTATION_PRIMITIVES
 from tsrrt_planner.errors import PlannerError
+from tsrrt_planner.kernels import steer_candidates
 from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.rearrange import (
@@ -57,6 +58,9 @@ from tsrrt_planner.rearrange import (
 MODES = ("paper", "paper-nogd", "tsrrt", "greedy")
 Push = tuple[int, int, float]  # (object index, primitive, push length)
 MIN_STEER_GAIN = 0.2  # share of an object's squared error a steering push must remove
+# of a steering push's closed-form length, tried when it is blocked (read-only)
+STEER_FRACTIONS = np.array([1.0, 0.97, 0.75, 0.5, 0.25])
+STEER_FRACTIONS.flags.writeable = False
 NEAR_OPTIMAL = 0.005  # targets within this share of the best target's cost count as optimal
 FAR_FROM_TARGETS = 0.05  # share of the best target's cost above it where DIRECTGD runs more often
 GD_FAILURES_TOLERATED = 3  # DIRECTGD descents in a row that may end infeasible before it waits
@@ -1138,27 +1142,9 @@ def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
     if only_object is not None:
         mine = objects == only_object
         objects, primitives = objects[mine], primitives[mine]
-    u = problem.push_directions(state, objects, primitives)                # (k, 3)
-    error = target[objects] - state[objects]
-    error[:, 2] = problem.angle_error(target[:, 2] - state[:, 2])[objects]
-    w2 = np.column_stack([np.ones((len(objects), 2)), weights[objects] ** 2])
-    ideal = (w2 * error * u).sum(1) / np.maximum((w2 * u * u).sum(1), 1e-12)
-    usable = ideal >= problem.min_length
-    if not usable.any():
-        return None
-    objects, primitives = objects[usable], primitives[usable]
-    ideal = np.minimum(ideal[usable], problem.max_lengths[objects])
-    lengths = np.concatenate([np.maximum(ideal * f, problem.min_length)
-                              for f in (1.0, 0.97, 0.75, 0.5, 0.25)])
-    objects, primitives = np.tile(objects, 5), np.tile(primitives, 5)
-    u = np.tile(u[usable], (5, 1))
-    error = np.tile(error[usable], (5, 1))
-    w2 = np.tile(w2[usable], (5, 1))
-    # rho^2 reduction of each candidate (only the pushed object's terms change)
-    before = (w2 * error**2).sum(1)
-    gain = before - (w2 * (error - lengths[:, None] * u) ** 2).sum(1)
-    order = np.argsort(-gain, kind="stable")
-    order = order[gain[order] > np.maximum(MIN_STEER_GAIN * before[order], 1e-10)]
+    objects, primitives, lengths, order = steer_candidates(
+        state, target, weights, objects, primitives, problem.rates, problem.angle_period,
+        problem.min_length, problem.max_lengths, STEER_FRACTIONS, MIN_STEER_GAIN)
     k = _first_valid(problem, state, objects, primitives, lengths, order)
     return None if k is None else (int(objects[k]), int(primitives[k]), float(lengths[k]))
 
@@ -1449,6 +1435,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         search = _GreedySearch(*arguments)
     elif mode == "tsrrt":
         compile_kernels(problem)   # before the search's clock starts
+        steer_push(problem, problem.start, problem.start, weights)   # STEER's kernel too
         search = _TsrrtSearch(*arguments, target=target,
                               previous_goal=None if previous_goal is None
                               else np.asarray(previous_goal, dtype=float))
