@@ -17,10 +17,11 @@ from tsrrt_planner.bench import default_models, jittered_problem, resolve_scenar
 from tsrrt_planner.errors import Cancelled, PlannerError
 from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap, swap_refine
 from tsrrt_planner.model_learning import ModelStore
-from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import (
     GD_FAILURES_TOLERATED,
+    MIN_STEER_GAIN,
     MODES,
     PAIR_COST_TOLERANCE,
     TASK_SPACE_RRT,
@@ -40,6 +41,7 @@ from tsrrt_planner.task_space_rrt import (
     polish_push,
     replay_from,
     simulate,
+    steer_push,
     track_plan,
     turned_towards,
 )
@@ -62,6 +64,51 @@ def tsrrt_search(problem: PlanningProblem, max_nodes: int = 100,
     weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
     return _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), None, max_nodes, None, None,
                         weights, target=target)
+
+
+def best_steering_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                       weights: np.ndarray) -> tuple[int, int, float] | None:
+    """STEER's push by brute force, one candidate at a time: of the valid candidates (each
+    push's closed-form length, clipped, times 1, 0.97, 0.75, 0.5 or 0.25) that remove more
+    than MIN_STEER_GAIN of their object's squared error, the one that removes the most of it
+    (the error's heading reduced before the push, the pose affine in the push's length)."""
+    best, best_gain = None, -math.inf
+    for o, primitive in zip(problem.action_objects, problem.action_primitives, strict=True):
+        per_metre = problem.apply(state, int(o), int(primitive), 1.0)[o] - state[o]
+        error = target[o] - state[o]
+        error[2] = shortest_turn(error[2], problem.angle_period[o])
+        w2 = np.array([1.0, 1.0, weights[o] ** 2])
+        ideal = (w2 * error * per_metre).sum() / max((w2 * per_metre ** 2).sum(), 1e-12)
+        if ideal < problem.min_length:
+            continue
+        before = (w2 * error ** 2).sum()
+        for fraction in (1.0, 0.97, 0.75, 0.5, 0.25):
+            length = max(min(ideal, problem.max_lengths[o]) * fraction, problem.min_length)
+            gain = before - (w2 * (error - length * per_metre) ** 2).sum()
+            valid = problem.pushes_valid(state, np.array([o]), np.array([primitive]),
+                                         np.array([length]))[0]
+            enough = gain > max(MIN_STEER_GAIN * before, 1e-10)
+            if valid and enough and gain > best_gain + 1e-12:
+                best, best_gain = (int(o), int(primitive), float(length)), gain
+    return best
+
+
+def test_steer_push_takes_the_valid_push_that_gains_most(problem):
+    """steer_push (its candidates compiled in kernels.steer_candidates) against a brute-force
+    search over the same candidates, from random states towards random targets."""
+    rng = np.random.default_rng(3)
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    pushes = 0
+    for _ in range(40):
+        state = problem.start + rng.normal(0.0, [0.01, 0.01, 0.1], problem.start.shape)
+        target = state + rng.normal(0.0, [0.05, 0.05, 0.5], state.shape)
+        push = steer_push(problem, state, target, weights)
+        expected = best_steering_push(problem, state, target, weights)
+        assert (push is None) == (expected is None)
+        if push is not None:
+            pushes += 1
+            assert push[:2] == expected[:2] and push[2] == pytest.approx(expected[2])
+    assert pushes >= 20
 
 
 def replay(problem: PlanningProblem, result) -> np.ndarray:
