@@ -380,6 +380,21 @@ def test_directgd_runs_more_often_while_the_best_node_is_far_from_every_target(t
     assert search.gd_period() == PlannerConfig().gd_period
 
 
+def test_directgd_starts_once_from_each_best_node_near_the_targets(tset6):
+    search = tsrrt_search(tset6)
+    state, cost = search.directgd(0)
+    search.add_target(state, cost)
+    search.polish(search.rearrange(0, search.choose_target(tset6.start)))
+    assert search.tree.size > 10 and search.best != 0
+    assert search.far_from_targets()    # far: a random node each time, often not the best
+    assert {search.descent_start() for _ in range(20)} != {search.best}
+    search.best_cost = cost             # near: the best node, once
+    assert search.descent_start() == search.best
+    assert len({search.descent_start() for _ in range(20)}) > 1
+    search.best = 1 if search.best != 1 else 2   # a new best node: from it, once
+    assert search.descent_start() == search.best
+
+
 def test_directgd_backs_off_after_descents_that_end_infeasible(tset6):
     """tset12's 36-DOF descents from its start end inside an overlap after gd_iterations;
     past the few tolerated in a row, each such descent doubles the wait for the next, and a

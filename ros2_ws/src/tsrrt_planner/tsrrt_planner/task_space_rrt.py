@@ -789,6 +789,7 @@ class _TsrrtSearch(_Search):
         self.targets: list[Target] = []
         self.polished: set[int] = set()  # nodes where polishing found nothing more
         self.gd_failures = 0   # DIRECTGD descents in a row that ended infeasible (gd_period)
+        self.descended_best = -1   # the last best node DIRECTGD started from (descent_start)
         self.max_parkings = max(MIN_PARKINGS, self.problem.n // OBJECTS_PER_PARKING)
         if target is not None:
             self.add_target(np.asarray(target, float),
@@ -807,7 +808,7 @@ class _TsrrtSearch(_Search):
         while True:
             rounds += 1
             if not self.targets or rounds % self.gd_period() == 0:
-                self.descend_from(int(self.rng.integers(self.tree.size)))  # varied nodes
+                self.descend_from(self.descent_start())
             if not self.targets:
                 # DIRECTGD has ended infeasible from every node so far (without a `target`, a
                 # crowded start can do that every time): grow the tree towards RANDOM_CONFIG,
@@ -828,6 +829,15 @@ class _TsrrtSearch(_Search):
         else:
             self.gd_failures = 0
             self.add_target(*found)
+
+    def descent_start(self) -> int:
+        """Where DIRECTGD starts: a random node (varied nodes, other basins to get out by),
+        or the best node once it is within FAR_FROM_TARGETS of the best target, once per best
+        node (a descent from the same node finds the same minimum)."""
+        if not self.far_from_targets() and self.best != self.descended_best:
+            self.descended_best = self.best
+            return self.best
+        return int(self.rng.integers(self.tree.size))
 
     def gd_period(self) -> int:
         """Rounds between DIRECTGD calls: a quarter of gd_period while the best node is more
