@@ -58,9 +58,10 @@ from tsrrt_planner.rearrange import (
 MODES = ("paper", "paper-nogd", "tsrrt", "greedy")
 Push = tuple[int, int, float]  # (object index, primitive, push length)
 MIN_STEER_GAIN = 0.2  # share of an object's squared error a steering push must remove
-# of a steering push's closed-form length, tried when it is blocked (read-only)
-STEER_FRACTIONS = np.array([1.0, 0.97, 0.75, 0.5, 0.25])
-STEER_FRACTIONS.flags.writeable = False
+# of a steering push's closed-form length, tried in turn when it is blocked (read-only; not
+# rearrange.STEER_FRACTIONS, the A*'s)
+STEER_RETRY_FRACTIONS = np.array([1.0, 0.97, 0.75, 0.5, 0.25])
+STEER_RETRY_FRACTIONS.flags.writeable = False
 NEAR_OPTIMAL = 0.005  # targets within this share of the best target's cost count as optimal
 FAR_FROM_TARGETS = 0.05  # share of the best target's cost above it where DIRECTGD runs more often
 GD_FAILURES_TOLERATED = 3  # DIRECTGD descents in a row that may end infeasible before it waits
@@ -1154,7 +1155,7 @@ def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
         objects, primitives = objects[mine], primitives[mine]
     objects, primitives, lengths, order = steer_candidates(
         state, target, weights, objects, primitives, problem.rates, problem.angle_period,
-        problem.min_length, problem.max_lengths, STEER_FRACTIONS, MIN_STEER_GAIN)
+        problem.min_length, problem.max_lengths, STEER_RETRY_FRACTIONS, MIN_STEER_GAIN)
     k = _first_valid(problem, state, objects, primitives, lengths, order)
     return None if k is None else (int(objects[k]), int(primitives[k]), float(lengths[k]))
 
