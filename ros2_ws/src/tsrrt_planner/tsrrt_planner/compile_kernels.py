@@ -9,21 +9,17 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
-
 from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
-from tsrrt_planner.rearrange import compile_kernels
-from tsrrt_planner.task_space_rrt import steer_push
+from tsrrt_planner.task_space_rrt import compile_search_kernels
 
 
 def main() -> None:
     began = time.perf_counter()
     scenario = load_scenario("obstacle")   # one with a static obstacle: every kernel's types
     problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
-    compile_kernels(problem)
-    steer_push(problem, problem.start, problem.start, np.ones(problem.n))
+    compile_search_kernels(problem)
     print(f"planner kernels ready in {time.perf_counter() - began:.1f} s")
 
 

@@ -1142,6 +1142,14 @@ def steer_object(problem: PlanningProblem, state: np.ndarray, target: np.ndarray
     return pushes, state
 
 
+def compile_search_kernels(problem: PlanningProblem) -> None:
+    """Compile (or load from numba's cache) the kernels of REARRANGE's A* and of STEER, so
+    that neither takes a first search's time; scripts/setup.sh runs it after each build
+    (compile_kernels.py)."""
+    compile_kernels(problem)
+    steer_push(problem, problem.start, problem.start, np.ones(problem.n))
+
+
 def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                weights: np.ndarray, only_object: int | None = None) -> Push | None:
     """The valid push that brings `state` closest to `target` under rho, or None if none
@@ -1445,8 +1453,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     if mode == "greedy":
         search = _GreedySearch(*arguments)
     elif mode == "tsrrt":
-        compile_kernels(problem)   # before the search's clock starts
-        steer_push(problem, problem.start, problem.start, weights)   # STEER's kernel too
+        compile_search_kernels(problem)   # before the search's clock starts
         search = _TsrrtSearch(*arguments, target=target,
                               previous_goal=None if previous_goal is None
                               else np.asarray(previous_goal, dtype=float))
