@@ -788,6 +788,7 @@ class _TsrrtSearch(_Search):
         self.previous_goal = previous_goal
         self.groups = interchangeable_groups(self.problem)
         self.targets: list[Target] = []
+        self.best_target_cost = math.inf   # the lowest cost of `targets`
         self.polished: set[int] = set()  # nodes where polishing found nothing more
         self.gd_failures = 0   # DIRECTGD descents in a row that ended infeasible (gd_period)
         self.descended_best = -1   # the last best node DIRECTGD started from (descent_start)
@@ -863,10 +864,11 @@ class _TsrrtSearch(_Search):
         return self.config.gd_period * back_off
 
     def far_from_targets(self) -> bool:
-        """Whether the best node is more than FAR_FROM_TARGETS above the best target."""
+        """Whether the best node is more than FAR_FROM_TARGETS above the best target (asked
+        at every budget check, search_time_limit)."""
         if not self.targets:
             return False
-        best_target = min(target.cost for target in self.targets)
+        best_target = self.best_target_cost
         return self.best_cost > best_target + FAR_FROM_TARGETS * abs(best_target)
 
     def search_time_limit(self) -> float:
@@ -925,13 +927,14 @@ class _TsrrtSearch(_Search):
         object's cost unchanged (`heading_steps`)."""
         for variant in equivalent_targets(self.problem, state):
             self.targets.append(Target(cost, variant, heading_steps(self.problem, variant, cost)))
+            self.best_target_cost = min(self.best_target_cost, cost)
 
     def choose_target(self, state: np.ndarray) -> np.ndarray:
         """A target for extending from `state` (n, 3): usually the near-optimal target (within
         NEAR_OPTIMAL of the best) closest to `state` under rho after matching interchangeable
         objects and turning objects in place to their equally good heading nearest to
         `state`'s, sometimes any target at random (other basins)."""
-        best_cost = min(target.cost for target in self.targets)
+        best_cost = self.best_target_cost
         near = [target for target in self.targets
                 if target.cost <= best_cost + NEAR_OPTIMAL * abs(best_cost)]
         if self.rng.random() < 0.2:
