@@ -115,6 +115,27 @@ def test_state_valid_checks_table_bounds_with_rotated_extent():
     assert not checker.state_valid(np.array([[0.101, 0.5, 0.3]]))  # rotated corner sticks out
 
 
+def test_on_table_rows_agrees_with_the_full_check_of_a_lone_object():
+    """The cheap table test (no neighbours) against state_valid, a tolerated overhang
+    included: c starts 1 mm past the x_min edge and may stay there but go no further."""
+    specs = [spec("a", "box", 0.2, 0.05), spec("b", "cylinder", 0.1, 0.1),
+             spec("c", "box", 0.2, 0.05)]
+    checker = checker_for(specs)
+    checker.tolerate(np.array([[0.5, 0.5, 0.0], [0.5, 0.2, 0.0], [0.099, 0.8, 0.0]]))
+    rng = np.random.default_rng(3)
+    rows = rng.integers(0, 3, 400)
+    poses = np.column_stack([rng.uniform(-0.05, 1.05, (400, 2)), rng.uniform(-3, 3, 400)])
+    on_table = checker.on_table_rows(rows, poses)
+    for row, pose, fast in zip(rows, poses, on_table):
+        alone = CollisionChecker(ObjectSet.from_specs([specs[row]]), [], (0.0, 0.0, 1.0, 1.0),
+                                 margin=0.0)
+        alone.table_allowance[0] = checker.table_allowance[row]
+        assert fast == alone.state_valid(pose[None])
+    assert 0 < on_table.sum() < 400
+    np.testing.assert_array_equal(checker.on_table_rows(
+        np.array([2, 2]), np.array([[0.099, 0.8, 0.0], [0.098, 0.8, 0.0]])), [True, False])
+
+
 def test_margin_is_enforced_between_objects():
     specs = [spec("a", "cylinder", 0.1, 0.1), spec("b", "cylinder", 0.1, 0.1)]
     state = np.array([[0.4, 0.5, 0.0], [0.504, 0.5, 0.0]])

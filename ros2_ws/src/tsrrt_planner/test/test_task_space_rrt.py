@@ -668,14 +668,17 @@ def test_rearrange_places_a_row_along_an_edge_without_parking(tset6):
 
 def test_polishing_looks_past_the_pushes_that_would_cross_the_edge(tset6):
     """tset6 with every plate 2 mm short of its corner: the 64 pushes that lower the cost most
-    are the longer ones into the corners, all past the edges; the 2-mm pushes come after."""
+    are the longer ones into the corners, all past the edges. Polishing leaves out the pushes
+    that end off the table before it takes the best 64, and finds the 2-mm push that a search
+    over every candidate finds."""
     grid = np.geomspace(tset6.min_length, tset6.max_length, 10)
     short = np.array([[0.332, -0.208, 0.0], [0.568, 0.208, 0.0], [0.57, -0.208, 0.0],
                       [0.33, 0.208, 0.0], [0.446, 0.0, -1.562], [0.329, 0.0, 1.56]])
     assert tset6.state_valid(short)
-    assert polish_push(tset6, short, grid) is None
-    push = polish_push(tset6, short, grid, limit=None)
+    assert polish_push(tset6, short, grid, on_table_first=False) is None
+    push = polish_push(tset6, short, grid)
     assert push is not None and push[2] == pytest.approx(tset6.min_length)
+    assert push == polish_push(tset6, short, grid, limit=None)
     assert tset6.objective.cost(tset6.apply(short, *push)) < tset6.objective.cost(short)
 
 

@@ -189,6 +189,13 @@ class CollisionChecker:
         x, y = poses[:, 0], poses[:, 1]
         return np.stack([x - hx - x_min, x_max - x - hx, y - hy - y_min, y_max - y - hy], -1)
 
+    def on_table_rows(self, rows: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """(k,) True where object rows[i] at poses[i] (k, 3) stays on the table, as the push
+        checks count it (its tolerated overhang included): a cheap test that needs no
+        other object."""
+        clearances = self.table_clearances_rows(rows, poses) + self.table_allowance[rows]
+        return (clearances >= 0.0).all(axis=-1)
+
     def ball_paths_clear(self, parent: np.ndarray, pushed: np.ndarray, start: np.ndarray,
                          end: np.ndarray, radius: float) -> np.ndarray:
         """(k,) True when the ball (radius) moving start->end (k, 2) keeps ball_margin from every
