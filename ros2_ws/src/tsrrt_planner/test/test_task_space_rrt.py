@@ -713,6 +713,23 @@ def test_a_finishing_push_is_folded_into_the_earlier_push_it_completes(problem):
     assert absorb_pushes(problem, turning, first=2) == turning
 
 
+def test_no_push_of_a_plan_folds_into_an_earlier_one(tset6):
+    """The returned plan has each push folded into the latest earlier push of its object and
+    primitive where that keeps it valid and ending no worse, not only the finishing pushes:
+    the search's POLISH and REARRANGE's paths leave short pushes mid-plan that finish an
+    earlier one."""
+    bound = lower_bound(tset6, starts=4)
+    searched = tset6.with_face_allowance(equivalent_targets(tset6, bound.state),
+                                         interchangeable_groups(tset6))
+    for seed in (0, 1):
+        result = TASK_SPACE_RRT(tset6, "tsrrt", seed=seed, max_nodes=300,
+                                lower_bound_cost=bound.cost, target=bound.state)
+        index = {object_id: i for i, object_id in enumerate(tset6.objects.ids)}
+        steps = [(index[step.object_id], step.primitive, step.push_length)
+                 for step in result.steps]
+        assert absorb_pushes(searched, steps, first=1) == steps
+
+
 def test_tracking_a_plan_from_its_own_start_repeats_it(problem):
     steps = [(0, 3, 0.03), (1, 3, 0.02), (0, 1, 0.01)]
     planned = list(simulate(problem, steps))
