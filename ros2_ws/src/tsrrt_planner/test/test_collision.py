@@ -126,7 +126,7 @@ def test_on_table_rows_agrees_with_the_full_check_of_a_lone_object():
     rows = rng.integers(0, 3, 400)
     poses = np.column_stack([rng.uniform(-0.05, 1.05, (400, 2)), rng.uniform(-3, 3, 400)])
     on_table = checker.on_table_rows(rows, poses)
-    for row, pose, fast in zip(rows, poses, on_table):
+    for row, pose, fast in zip(rows, poses, on_table, strict=True):
         alone = CollisionChecker(ObjectSet.from_specs([specs[row]]), [], (0.0, 0.0, 1.0, 1.0),
                                  margin=0.0)
         alone.table_allowance[0] = checker.table_allowance[row]

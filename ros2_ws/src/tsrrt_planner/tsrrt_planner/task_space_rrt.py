@@ -414,7 +414,7 @@ class _Search:
         actions = self.tree.action[path[1:]]
         steps = [(int(a[0]), int(a[1]), float(a[2])) for a in actions]
         if self.mode == "tsrrt":
-            # then each push folded into an earlier one it finishes, as the finishing pushes are
+            # each push folded into an earlier one it finishes, as the finishing pushes are
             steps = absorb_pushes(self.problem, self.shortcut(steps), first=1)
             finished = absorb_pushes(self.problem, steps + self.finishing_polish(steps),
                                      first=len(steps))
@@ -870,13 +870,11 @@ class _TsrrtSearch(_Search):
     def far_from_targets(self) -> bool:
         """Whether the best node is more than FAR_FROM_TARGETS above the best target (asked
         at every budget check, search_time_limit)."""
-        if not self.targets:
-            return False
-        best_target = self.best_target_cost
-        return self.best_cost > best_target + FAR_FROM_TARGETS * abs(best_target)
+        return not self.near_targets(self.best_cost)
 
     def near_targets(self, cost: float) -> bool:
-        """Whether `cost` is within FAR_FROM_TARGETS of the best target."""
+        """Whether `cost` is within FAR_FROM_TARGETS of the best target (True while there is
+        no target)."""
         best_target = self.best_target_cost
         return cost <= best_target + FAR_FROM_TARGETS * abs(best_target)
 
@@ -1205,10 +1203,11 @@ def polish_push(problem: PlanningProblem, state: np.ndarray, grid: np.ndarray,
     most without taking away a turn of its object that would lower it more (`lost_turn`), or
     None if none lowers it, looking only at the `limit` best pushes (None: all) that lower it
     before each lost turn; with `on_table_first`, the best of those that keep their object
-    on the table (near an edge the pushes that gain most go past it). Line searches take the biggest gain first, so a box off its best
-    heading got pushed in beside a neighbour before it was turned, and then the ball no longer
-    fitted between them to turn it: clean's eraser stayed 10 degrees off beside the remote,
-    21 % above the bound (seed 0 of 20 at 250 nodes)."""
+    on the table (near an edge the pushes that gain most go past it). Line searches take the
+    biggest gain first, so a box off its best heading got pushed in beside a neighbour before
+    it was turned, and then the ball no longer fitted between them to turn it: clean's eraser
+    stayed 10 degrees off beside the remote, 21 % above the bound (seed 0 of 20 at 250
+    nodes)."""
     objects, primitives, lengths, candidates, costs = line_search_pushes(
         problem, state, problem.action_objects, problem.action_primitives, grid)
     cost = float(problem.objective.cost(state))
