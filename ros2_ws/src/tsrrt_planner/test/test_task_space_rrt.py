@@ -666,6 +666,39 @@ def test_rearrange_places_a_row_along_an_edge_without_parking(tset6):
                                atol=0.004)
 
 
+def test_rearrange_swaps_targets_to_get_a_walled_in_plate_out(tset6):
+    """plate_1 stands on the +y side of the platters, its corner (by the base, at -y) on the
+    other side: the platters wall it in, the far corner plates close the strip past them, and
+    no parking pose for a platter clears its way (tset6 seed 24's search sat there, 23 %
+    above the bound). plate_2's far corner is in reach once plate_2 has gone, so plate_1 takes
+    it; plate_2 then takes plate_3's, down the strip, and plate_3 the free corner by the base."""
+    poses = {"plate_1": (0.408, 0.139, 0.0), "plate_2": (0.57, 0.21, 0.0),
+             "plate_3": (0.57, -0.21, 0.0), "plate_4": (0.33, 0.208, 0.0),
+             "platter_1": (0.455, -0.001, -1.57), "platter_2": (0.357, 0.002, 1.545)}
+    scenario = tset6.scenario
+    objects = tuple(replace(spec, pose=Pose2D(*poses[spec.id]))
+                    for spec in scenario.objects)
+    problem = PlanningProblem(replace(scenario, objects=objects),
+                              learn_all(scenario.objects, seed=0))
+    ids = problem.objects.ids
+    arrangement = problem.start.copy()
+    corners = {"plate_1": (0.33, -0.21), "plate_2": (0.57, 0.21), "plate_3": (0.57, -0.21),
+               "plate_4": (0.33, 0.21)}
+    for name, corner in corners.items():
+        arrangement[ids.index(name), :2] = corner
+    search = tsrrt_search(problem, max_nodes=2000)
+    swaps = []
+    swap = search.swap_targets
+    search.swap_targets = lambda *args, **kwargs: (swaps.append(swap(*args, **kwargs))
+                                                   or swaps[-1])
+    end = search.tree.states[search.rearrange(0, arrangement)]
+    assert swaps.count(True) == 2
+    plates = [ids.index(name) for name in corners]
+    ends = {tuple(np.round(end[i, :2], 2)) for i in plates}
+    assert ends == {(0.57, 0.21), (0.57, -0.21), (0.33, -0.21), (0.33, 0.21)}
+    assert problem.state_valid(end)
+
+
 def test_polishing_looks_past_the_pushes_that_would_cross_the_edge(tset6):
     """tset6 with every plate 2 mm short of its corner: the 64 pushes that lower the cost most
     are the longer ones into the corners, all past the edges. Polishing leaves out the pushes
