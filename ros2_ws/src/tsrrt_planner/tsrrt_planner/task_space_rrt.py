@@ -963,9 +963,10 @@ class _TsrrtSearch(_Search):
         """REARRANGE (rearrange.py): move the objects to `target` (inset from the table
         edges) one at a time along searched push paths. Objects whose target would stand in
         another pending object's straight way (corridor_blocks) wait; of the rest, those with
-        a free target go first. When none gets there (or all wait on each other), an object
-        in the way is parked; when that fails too, the waiting objects are tried. Returns
-        the last node added (or `node`).
+        a free target go first. When none gets there, near the targets, one of them may
+        first take the target of a placed object of its kind (swap_targets); else (or when all
+        wait on each other) an object in the way is parked; when that fails too, the waiting
+        objects are tried. Returns the last node added (or `node`).
 
         Who waits for whom is decided on the arrangement itself, not on the inset aims: an
         object moved 2 mm in from the edge comes within the margin of its neighbour in a
