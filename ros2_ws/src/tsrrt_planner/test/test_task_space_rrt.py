@@ -637,6 +637,15 @@ def tset6() -> PlanningProblem:
     return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
 
 
+def starting_at(problem: PlanningProblem, poses: dict[str, tuple[float, float, float]]
+                ) -> PlanningProblem:
+    """`problem`'s scenario started from `poses` (every object's), with the same models."""
+    scenario = problem.scenario
+    objects = tuple(replace(spec, pose=Pose2D(*poses[spec.id])) for spec in scenario.objects)
+    return PlanningProblem(replace(scenario, objects=objects),
+                           learn_all(scenario.objects, seed=0))
+
+
 def test_rearrange_places_a_row_along_an_edge_without_parking(tset6):
     """Two plates go to a row along the far edge, side by side at the margin. Aimed 2 mm in
     from the edges, the corner plate would come within the margin of its neighbour and each
@@ -645,13 +654,9 @@ def test_rearrange_places_a_row_along_an_edge_without_parking(tset6):
     poses = {"plate_1": (0.57, 0.09, 0.0), "plate_2": (0.465, 0.09, 0.0),
              "plate_3": (0.33, -0.21, 0.0), "plate_4": (0.33, 0.21, 0.0),
              "platter_1": (0.50, -0.15, 0.0), "platter_2": (0.40, -0.02, 0.0)}
-    scenario = tset6.scenario
-    objects = tuple(replace(spec, pose=Pose2D(*poses[spec.id]))
-                    for spec in scenario.objects)
-    problem = PlanningProblem(replace(scenario, objects=objects),
-                              learn_all(scenario.objects, seed=0))
+    problem = starting_at(tset6, poses)
     corner, beside = (problem.objects.ids.index(name) for name in ("plate_1", "plate_2"))
-    _, _, x_max, y_max = scenario.table.bounds
+    _, _, x_max, y_max = problem.scenario.table.bounds
     radius = problem.objects.half_length[corner]
     arrangement = problem.start.copy()
     arrangement[corner, :2] = x_max - radius, y_max - radius
@@ -675,11 +680,7 @@ def test_rearrange_swaps_targets_to_get_a_walled_in_plate_out(tset6):
     poses = {"plate_1": (0.408, 0.139, 0.0), "plate_2": (0.57, 0.21, 0.0),
              "plate_3": (0.57, -0.21, 0.0), "plate_4": (0.33, 0.208, 0.0),
              "platter_1": (0.455, -0.001, -1.57), "platter_2": (0.357, 0.002, 1.545)}
-    scenario = tset6.scenario
-    objects = tuple(replace(spec, pose=Pose2D(*poses[spec.id]))
-                    for spec in scenario.objects)
-    problem = PlanningProblem(replace(scenario, objects=objects),
-                              learn_all(scenario.objects, seed=0))
+    problem = starting_at(tset6, poses)
     ids = problem.objects.ids
     arrangement = problem.start.copy()
     corners = {"plate_1": (0.33, -0.21), "plate_2": (0.57, 0.21), "plate_3": (0.57, -0.21),
@@ -754,10 +755,10 @@ def test_no_push_of_a_plan_folds_into_an_earlier_one(tset6):
     bound = lower_bound(tset6, starts=4)
     searched = tset6.with_face_allowance(equivalent_targets(tset6, bound.state),
                                          interchangeable_groups(tset6))
+    index = {object_id: i for i, object_id in enumerate(tset6.objects.ids)}
     for seed in (0, 1):
         result = TASK_SPACE_RRT(tset6, "tsrrt", seed=seed, max_nodes=300,
                                 lower_bound_cost=bound.cost, target=bound.state)
-        index = {object_id: i for i, object_id in enumerate(tset6.objects.ids)}
         steps = [(index[step.object_id], step.primitive, step.push_length)
                  for step in result.steps]
         assert absorb_pushes(searched, steps, first=1) == steps
