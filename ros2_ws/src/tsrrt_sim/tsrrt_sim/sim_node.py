@@ -3,7 +3,8 @@
 Threads: a physics thread owns the SimWorld (every PyBullet call happens on it). It steps the
 world in ticks of a few physics steps, publishes /clock after each tick and the other topics
 when due, and runs requests from ROS callbacks (goals, services) between ticks. ROS callbacks
-run on a MultiThreadedExecutor and hand work to the physics thread through a queue.
+run on a MultiThreadedExecutor and hand work to the physics thread through a queue. A trajectory
+goal starts as it is accepted, so of two goals the one accepted later preempts.
 
 Time: this node drives /clock and therefore never runs on simulation time itself; physics is paced
 by the wall clock (real_time_factor > 0) or runs as fast as it can (0). Message stamps are
@@ -87,6 +88,7 @@ REQUEST_TIMEOUT_S = 30.0
 # If pacing falls this far behind the wall clock, restart it instead of running in a burst.
 MAX_PACING_LAG_S = 0.5
 GOAL_POLL_PERIOD_S = 0.005   # wall s between checks whether a trajectory goal has finished
+ACCEPTED_START_WAIT_S = 1.0  # wall s a goal waits for those accepted before it to start
 
 T = TypeVar("T")
 
@@ -159,11 +161,21 @@ class SimNode(Node):
         self.action_server = ActionServer(
             self, FollowJointTrajectory, "/arm_controller/follow_joint_trajectory",
             execute_callback=self._execute_goal, goal_callback=self._on_goal,
-            cancel_callback=self._on_cancel, callback_group=group)
+            handle_accepted_callback=self._on_accepted, cancel_callback=self._on_cancel,
+            callback_group=group)
         self.create_service(LoadScenario, "/sim/load_scenario", self._on_load_scenario,
                             callback_group=group)
         self.create_service(DisturbObject, "/sim/disturb_object", self._on_disturb_object,
                             callback_group=group)
+
+        # Goals start in the order _on_goal accepted them (tickets, keyed by the request
+        # object until the goal has an id); what each started waits in _started for its
+        # execute callback.
+        self._start_turn = threading.Condition()
+        self._tickets: dict[int, int] = {}
+        self._tickets_issued = 0
+        self._next_ticket = 0
+        self._started: dict[bytes, TrajectoryExecution | TrajectoryError | SimulationStopped] = {}
 
         self._requests: queue.Queue[tuple[Callable[[], Any], Future]] = queue.Queue()
         # Cleared, under the lock, when physics stops: a request queued after its last drain
@@ -404,10 +416,38 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------------------ action
     def _on_goal(self, goal_request: FollowJointTrajectory.Goal) -> GoalResponse:
-        """Accept every goal; _execute_goal validates it so the result can say what is wrong."""
+        """Accept every goal; _on_accepted validates it so the result can say what is wrong."""
         points = goal_request.trajectory.points
         self.get_logger().info(f"trajectory goal received: {len(points)} points")
+        with self._start_turn:
+            self._tickets[id(goal_request)] = self._tickets_issued
+            self._tickets_issued += 1
         return GoalResponse.ACCEPT
+
+    def _on_accepted(self, goal_handle: ServerGoalHandle) -> None:
+        """Start the trajectory in the order the goals were accepted, so of two goals the later
+        preempts.
+
+        Execute callbacks run on executor threads in any order: started there, a goal sent just
+        after another could start first and be preempted by the earlier one. The client hears
+        of the acceptance before this runs, so a goal it sends next may get here first; it waits
+        its turn (at most ACCEPTED_START_WAIT_S, should a goal accepted earlier never get here).
+        """
+        started: TrajectoryExecution | TrajectoryError | SimulationStopped
+        with self._start_turn:
+            ticket = self._tickets.pop(id(goal_handle.request))
+            self._start_turn.wait_for(lambda: self._next_ticket >= ticket,
+                                      ACCEPTED_START_WAIT_S)
+            try:
+                trajectory, tolerances, start = self._prepare(goal_handle.request)
+                started = self._call_in_physics(
+                    lambda: self._start_execution(trajectory, tolerances, start))
+            except (TrajectoryError, SimulationStopped) as error:
+                started = error
+            self._started[bytes(goal_handle.goal_id.uuid)] = started
+            self._next_ticket = max(self._next_ticket, ticket + 1)
+            self._start_turn.notify_all()
+        goal_handle.execute()
 
     def _on_cancel(self, goal_handle: ServerGoalHandle) -> CancelResponse:
         return CancelResponse.ACCEPT
@@ -439,17 +479,15 @@ class SimNode(Node):
 
     def _execute_goal(self, goal_handle: ServerGoalHandle) -> FollowJointTrajectory.Result:
         result = FollowJointTrajectory.Result()
-        try:
-            trajectory, tolerances, start = self._prepare(goal_handle.request)
-            execution = self._call_in_physics(
-                lambda: self._start_execution(trajectory, tolerances, start))
-        except TrajectoryError as error:
-            self.get_logger().warn(f"trajectory goal refused ({error.code.name}): {error}")
+        with self._start_turn:
+            execution = self._started.pop(bytes(goal_handle.goal_id.uuid))
+        if isinstance(execution, TrajectoryError):
+            self.get_logger().warn(f"trajectory goal refused ({execution.code.name}): {execution}")
             goal_handle.abort()
-            result.error_code, result.error_string = int(error.code), str(error)
+            result.error_code, result.error_string = int(execution.code), str(execution)
             return result
-        except SimulationStopped as stopped:
-            return self._abort_stopped(goal_handle, result, stopped)
+        if isinstance(execution, SimulationStopped):
+            return self._abort_stopped(goal_handle, result, execution)
         published = False
         next_feedback = time.monotonic()
         while not execution.done:
