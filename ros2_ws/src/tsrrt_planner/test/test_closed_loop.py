@@ -513,11 +513,13 @@ def test_a_first_plan_far_above_the_bound_is_made_again_with_the_next_seed(monke
 
 
 def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
-    budgets, deadlines = [], []
+    budgets, deadlines, stalls, starts = [], [], [], []
 
     def recording(*args, **kwargs):
         budgets.append(kwargs["time_budget_s"])
         deadlines.append(kwargs["soft_deadline"])
+        stalls.append(kwargs["stall"])
+        starts.append(float(args[0].objective.cost(args[0].start)))
         return TASK_SPACE_RRT(*args, **kwargs)
 
     monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", recording)
@@ -534,6 +536,10 @@ def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
     assert deadlines[0].seconds == 30.0
     assert deadlines[0].cost == pytest.approx(bound.cost + 0.1 * abs(bound.cost))
     assert set(deadlines[1:]) == {None}
+    # ... and within that gap it stops once it stalls, as later plans do near their aim
+    assert stalls[0].window_s == settings.stall_s and stalls[0].ceiling == deadlines[0].cost
+    scale = max(abs(starts[0]), starts[0] - bound.cost)
+    assert stalls[0].tolerance == pytest.approx(settings.convergence * scale)
 
 
 def test_task_loop_lowers_the_cost_and_converges() -> None:

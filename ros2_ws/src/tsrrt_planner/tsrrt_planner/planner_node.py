@@ -265,9 +265,9 @@ class PlannerNode(Node):
                 "gap to the lower bound above which a task's first plan goes on past "
                 "planning_budget_s (relative to |bound|; to the start's distance if it is 0)"))
         declare("stall_s", 2.0, _float(0.0, 600.0,
-                "RunTask: a plan after the first stops when, near what the plan it replaces "
-                "promised (or the lower bound), its best improves by less than convergence in "
-                "this long, s (0: off)"))
+                "RunTask: a plan stops when, near what the plan it replaces promised (or the "
+                "lower bound; the first plan: within first_plan_gap of it), its best improves "
+                "by less than convergence in this long, s (0: off)"))
         declare("stall_far_s", 3.0, _float(0.0, 600.0,
                 "RunTask: ... and, farther from it but with a gain worth executing, when its "
                 "best improves by less than convergence in this long, s (0: never)"))
