@@ -606,8 +606,9 @@ def test_a_replan_is_given_the_plan_it_replaces(monkeypatch) -> None:
     monkeypatch.setattr(closed_loop, "plan_from", recording_plan_from)
     _, report = _task("tset3", seed=0, bump_after=2)
     assert report.replans >= 1
-    # the first plan uses its whole budget; later ones stop when they stall for 2 s, at 1 % of
-    # the task's range (the larger scale here), a replan only near what it replaces promised
+    # the first plan has no aim (plan_from stalls it within first_plan_gap of the bound); later
+    # ones stop when they stall for 2 s, at 1 % of the task's range (the larger scale here), a
+    # replan only near what it replaces promised
     assert calls[0][0] is None and calls[0][2] is None and calls[0][3] is None
     task_range = report.start_cost - report.lower_bound
     promised = float(np.min(calls[1][0][0].costs))
