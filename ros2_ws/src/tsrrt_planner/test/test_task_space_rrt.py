@@ -206,9 +206,23 @@ def test_shortest_within_trades_a_little_cost_for_fewer_pushes(problem, bound):
     np.testing.assert_allclose(shortest.states, replay(problem, shortest), atol=1e-12)
 
 
-def test_a_negative_shortest_within_is_an_error(problem):
-    with pytest.raises(PlannerError, match="shortest_within"):
-        TASK_SPACE_RRT(problem, "tsrrt", max_nodes=10, shortest_within=-1.0)
+def test_a_push_cost_trades_cost_for_fewer_pushes(problem, bound):
+    """Charged for its pushes, the plan goes to a shallower node of the same tree: one more
+    push must gain that much to be worth it."""
+    push_cost = 0.001 * abs(bound.cost)
+    best, charged = (TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=200,
+                                    target=bound.state, push_cost=cost)
+                     for cost in (0.0, push_cost))
+    assert [c for _, _, c in charged.trace[:-1]] == [c for _, _, c in best.trace[:-1]]
+    assert len(charged.steps) < len(best.steps)
+    assert charged.costs[-1] <= best.costs[-1] + push_cost * len(best.steps)
+    np.testing.assert_allclose(charged.states, replay(problem, charged), atol=1e-12)
+
+
+@pytest.mark.parametrize("argument", ["shortest_within", "push_cost"])
+def test_a_negative_node_choice_is_an_error(problem, argument):
+    with pytest.raises(PlannerError, match=argument):
+        TASK_SPACE_RRT(problem, "tsrrt", max_nodes=10, **{argument: -1.0})
 
 
 def test_a_soft_deadline_stops_a_search_only_once_its_best_is_good_enough(problem, bound):

@@ -281,6 +281,9 @@ class PlannerNode(Node):
         declare("pushes_per_convergence", 10, _integer(1, 10000,
                 "RunTask: a plan after the first must predict a gain of convergence for every "
                 "this many pushes it takes, or the task has converged"))
+        declare("push_cost_share", 0.5, _float(0.0, 10.0,
+                "RunTask, PlanTask: a plan goes to the state whose cost plus this share of "
+                "that gain per push is least (0: to the best state found)"))
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
@@ -680,6 +683,7 @@ class PlannerNode(Node):
             give_up_s=self._param("give_up_s") or None,
             give_up_near=self._param("give_up_near"),
             pushes_per_convergence=self._param("pushes_per_convergence"),
+            push_cost_share=self._param("push_cost_share"),
             seed=seed if seed >= 0 else self._param("planner_seed"),
             margin=self._param("planning_margin"))
 

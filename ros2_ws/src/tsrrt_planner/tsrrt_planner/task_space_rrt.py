@@ -263,13 +263,14 @@ class _Search:
                  good_enough_cost: float | None = None,
                  stall: StallRule | None = None, shortest_within: float = 0.0,
                  soft_deadline: SoftDeadline | None = None,
-                 give_up: GiveUpRule | None = None) -> None:
+                 give_up: GiveUpRule | None = None, push_cost: float = 0.0) -> None:
         self.problem, self.mode, self.seed, self.config = problem, mode, seed, config
         self.good_enough_cost = good_enough_cost
         self.stall = stall
         self.soft_deadline = soft_deadline
         self.give_up = give_up
         self.shortest_within = shortest_within
+        self.push_cost = push_cost
         self.rng = np.random.default_rng(seed)
         self.time_budget_s, self.max_nodes = time_budget_s, max_nodes
         self.deadline_s = time_budget_s  # the result is due then (tsrrt searches for less)
@@ -421,7 +422,8 @@ class _Search:
             finished = absorb_pushes(self.problem, steps + self.finishing_polish(steps),
                                      first=len(steps))
             # asked for the shortest plan near the best, take the finish only where it is free
-            if self.shortest_within <= 0.0 or len(finished) <= len(steps):
+            if (self.shortest_within <= 0.0 and self.push_cost <= 0.0
+                    or len(finished) <= len(steps)):
                 steps = finished
         states = simulate(self.problem, steps)
         costs = np.asarray(self.problem.objective.cost(states))
@@ -437,15 +439,18 @@ class _Search:
 
     def chosen_node(self) -> int:
         """The best node, or with `shortest_within` the node with the fewest pushes among
-        those within that of the best cost (the cheapest of them). With the budget of a
-        task's first plan the best node may lie at the end of a long detour that gains next to
-        nothing over a state one push away (two_boxes: a 28-push plan to 0.0009 where 0.0009
-        was one push away), and a robot pays for every push."""
-        if self.shortest_within <= 0.0:
+        those within that of the best cost (the cheapest of them); with `push_cost`, the same
+        among the nodes within that of the best cost plus `push_cost` per push (tree depth).
+        With the budget of a task's first plan the best node may lie at the end of a long
+        detour that gains next to nothing over a state one push away (two_boxes: a 28-push
+        plan to 0.0009 where 0.0009 was one push away), and a robot pays for every push."""
+        if self.shortest_within <= 0.0 and self.push_cost <= 0.0:
             return self.best
         costs = self.tree.cost[: self.tree.size]
-        near = np.nonzero(costs <= self.best_cost + self.shortest_within)[0]
-        return int(near[np.lexsort((costs[near], self.tree.depths()[near]))[0]])
+        depths = self.tree.depths()
+        charged = costs + self.push_cost * depths
+        near = np.nonzero(charged <= charged.min() + self.shortest_within)[0]
+        return int(near[np.lexsort((costs[near], depths[near]))[0]])
 
     def finishing_polish(self, steps: list[Push]) -> list[Push]:
         """POLISH of the plan's end state over every candidate push, not the best 64. By a
@@ -1452,7 +1457,7 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
                    good_enough_cost: float | None = None,
                    stall: StallRule | None = None, shortest_within: float = 0.0,
                    soft_deadline: SoftDeadline | None = None,
-                   give_up: GiveUpRule | None = None) -> PlanResult:
+                   give_up: GiveUpRule | None = None, push_cost: float = 0.0) -> PlanResult:
     """Plan pushes that lower the objective; returns the best plan found (anytime).
 
     Models are learned beforehand (Fig. 4 lines 1-2 are LEARN_MODEL, see model_learning), so this
@@ -1486,6 +1491,9 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         give_up: stop once past its time with a best cost still above its cost (GiveUpRule;
             stop reason "nothing found"); the plan still gets its finishing polish.
             Time-based, so not repeatable by seed.
+        push_cost: the plan goes to the node whose cost plus this much per push (its depth in
+            the tree) is least (with `shortest_within`: the shallowest within that of it),
+            not to the best node: what one more push must gain to be worth the robot's time.
     """
     if mode not in MODES:
         raise PlannerError(f"unknown planner mode {mode!r}; known: {list(MODES)}")
@@ -1500,6 +1508,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
         raise PlannerError(f"epsilon must be within [0, 1], got {config.epsilon}")
     if not shortest_within >= 0.0:
         raise PlannerError(f"shortest_within must be >= 0, got {shortest_within}")
+    if not push_cost >= 0.0:
+        raise PlannerError(f"push_cost must be >= 0, got {push_cost}")
     if stall is not None and not (stall.window_s > 0 and stall.far_window_s > 0
                                   and stall.tolerance >= 0):
         raise PlannerError(f"a stall rule needs windows > 0 s and a tolerance >= 0, got "
@@ -1519,7 +1529,8 @@ def TASK_SPACE_RRT(problem: PlanningProblem, mode: str = "tsrrt", seed: int = 0,
     warm_pushes = [(index[step.object_id], step.primitive, step.push_length)
                    for step in warm_start]
     arguments = (problem, mode, seed, config, time_budget_s, max_nodes, progress, cancel,
-                 weights, good_enough_cost, stall, shortest_within, soft_deadline, give_up)
+                 weights, good_enough_cost, stall, shortest_within, soft_deadline, give_up,
+                 push_cost)
     search: _Search
     if mode == "greedy":
         search = _GreedySearch(*arguments)
