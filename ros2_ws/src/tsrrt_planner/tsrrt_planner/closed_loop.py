@@ -573,7 +573,7 @@ class TaskSettings:
     # to the best node: from clean's logged start, 12 first plans went to the best node in 18-46
     # pushes (median 34.5) for 3.3-9.2 % above the bound (4.8 %); charged half, 18-35 (20) for
     # 4.3-14.9 % (6.3 %). A push takes ~0.6 s: clean demos took 40 s against 46 s (median of
-    # 9 each), ending 7.2 % above the bound against 4.5 % (docs/planner.md, "Which plan").
+    # 9 each), ending 7.2 % above the bound against 4.5 % (docs/planner.md, "Pushes charged").
     push_cost_share: float = 0.5
     # A plan that climbs more than this many times what its detour then gains ends in a
     # detour; steps_worth_executing says when only the part before the climb is executed.

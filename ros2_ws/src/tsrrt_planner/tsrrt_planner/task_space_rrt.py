@@ -439,8 +439,8 @@ class _Search:
 
     def chosen_node(self) -> int:
         """The best node, or with `shortest_within` the node with the fewest pushes among
-        those within that of the best cost (the cheapest of them); with `push_cost`, the same
-        among the nodes within that of the best cost plus `push_cost` per push (tree depth).
+        those within that of the best cost (the cheapest of them); with `push_cost`, costs are
+        charged that much per push (tree depth) first, and the least charged cost is the best.
         With the budget of a task's first plan the best node may lie at the end of a long
         detour that gains next to nothing over a state one push away (two_boxes: a 28-push
         plan to 0.0009 where 0.0009 was one push away), and a robot pays for every push."""
