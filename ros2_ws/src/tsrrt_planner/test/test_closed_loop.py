@@ -23,6 +23,7 @@ from tsrrt_planner.closed_loop import (
     _negligible,
     footprint_gap,
     learn_in_place,
+    plan_from,
     run_task,
     scenario_at,
     update_model_with_push,
@@ -540,6 +541,30 @@ def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
     assert stalls[0].window_s == settings.stall_s and stalls[0].ceiling == deadlines[0].cost
     scale = max(abs(starts[0]), starts[0] - bound.cost)
     assert stalls[0].tolerance == pytest.approx(settings.convergence * scale)
+
+
+def test_plans_charge_their_pushes_a_share_of_the_gain_a_push_must_make(monkeypatch) -> None:
+    charges = []
+
+    def recording(*args, **kwargs):
+        charges.append((float(args[0].objective.cost(args[0].start)), kwargs["push_cost"]))
+        return TASK_SPACE_RRT(*args, **kwargs)
+
+    monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", recording)
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
+    poses = {o.id: o.pose for o in scenario.objects}
+    for share in (0.5, 0.0):
+        settings = TaskSettings(planning_max_nodes=20, push_cost_share=share)
+        plan_from(scenario, poses, store, AnnulusReachability(), settings, bound.cost,
+                  bound.state, lambda: False)
+    (start, charged), (_, free) = charges
+    # half of `convergence` of the task's scale for every pushes_per_convergence pushes
+    scale = max(abs(start), start - bound.cost)
+    assert charged == pytest.approx(0.5 * settings.convergence * scale
+                                    / settings.pushes_per_convergence)
+    assert free == 0.0
 
 
 def test_task_loop_lowers_the_cost_and_converges() -> None:
