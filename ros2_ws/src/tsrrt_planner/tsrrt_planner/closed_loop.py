@@ -641,21 +641,21 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
                        _state_of(problem, where))
     start_cost = float(problem.objective.cost(problem.start))
     scale = max(abs(start_cost), task_range)
-    soft_deadline = None
     if math.isfinite(lower_bound_cost):
         scale = max(scale, start_cost - lower_bound_cost)
-        if extend_above_gap is not None:
-            reference = (abs(lower_bound_cost) if abs(lower_bound_cost) > 1e-9
-                         else start_cost - lower_bound_cost)
-            soft_deadline = SoftDeadline(settings.planning_budget_s,
-                                         lower_bound_cost + extend_above_gap * reference)
-            if stall is None and settings.stall_s is not None:
-                # within that gap, the basin is chosen: a first plan that has stalled there
-                # has most of what its budget would find (clean, from a demo's start, seeds
-                # 0-7: 4.2 % above the bound in 3.1 s against 3.0 % in 7 s; tset6 the same
-                # 2.3 % in 6.9 s against 7.8 s), and the robot waits for every second of it
-                stall = StallRule(settings.stall_s, settings.convergence * scale,
-                                  ceiling=soft_deadline.cost)
+    least = settings.convergence * scale   # the least gain worth pushes (`_negligible`)
+    soft_deadline = None
+    if math.isfinite(lower_bound_cost) and extend_above_gap is not None:
+        reference = (abs(lower_bound_cost) if abs(lower_bound_cost) > 1e-9
+                     else start_cost - lower_bound_cost)
+        soft_deadline = SoftDeadline(settings.planning_budget_s,
+                                     lower_bound_cost + extend_above_gap * reference)
+        if stall is None and settings.stall_s is not None:
+            # within that gap, the basin is chosen: a first plan that has stalled there has
+            # most of what its budget would find (clean, from a demo's start, seeds 0-7: 4.2 %
+            # above the bound in 3.1 s against 3.0 % in 7 s; tset6 the same 2.3 % in 6.9 s
+            # against 7.8 s), and the robot waits for every second of it
+            stall = StallRule(settings.stall_s, least, ceiling=soft_deadline.cost)
     warm_start, previous_goal = (), None
     if replaced is not None:
         plan, executed = replaced
@@ -667,8 +667,8 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
                             lower_bound_cost=lower_bound_cost, target=target,
                             warm_start=warm_start, previous_goal=previous_goal,
                             good_enough_cost=good_enough_cost, stall=stall,
-                            shortest_within=0.5 * settings.convergence * scale,
-                            push_cost=(settings.push_cost_share * settings.convergence * scale
+                            shortest_within=0.5 * least,
+                            push_cost=(settings.push_cost_share * least
                                        / settings.pushes_per_convergence),
                             soft_deadline=soft_deadline, give_up=give_up)
     return problem, result

@@ -421,9 +421,8 @@ class _Search:
             steps = absorb_pushes(self.problem, self.shortcut(steps), first=1)
             finished = absorb_pushes(self.problem, steps + self.finishing_polish(steps),
                                      first=len(steps))
-            # asked for the shortest plan near the best, take the finish only where it is free
-            if (self.shortest_within <= 0.0 and self.push_cost <= 0.0
-                    or len(finished) <= len(steps)):
+            # asked for a short plan, take the finish only where it is free
+            if not self.counts_pushes() or len(finished) <= len(steps):
                 steps = finished
         states = simulate(self.problem, steps)
         costs = np.asarray(self.problem.objective.cost(states))
@@ -437,6 +436,10 @@ class _Search:
             nodes=self.tree.size, elapsed_s=self.elapsed(), trace=tuple(self.trace),
             stop_reason=stop_reason, lower_bound=lower_bound)
 
+    def counts_pushes(self) -> bool:
+        """Whether the plan's length counts in where it goes (`shortest_within`, `push_cost`)."""
+        return self.shortest_within > 0.0 or self.push_cost > 0.0
+
     def chosen_node(self) -> int:
         """The best node, or with `shortest_within` the node with the fewest pushes among
         those within that of the best cost (the cheapest of them); with `push_cost`, costs are
@@ -444,7 +447,7 @@ class _Search:
         With the budget of a task's first plan the best node may lie at the end of a long
         detour that gains next to nothing over a state one push away (two_boxes: a 28-push
         plan to 0.0009 where 0.0009 was one push away), and a robot pays for every push."""
-        if self.shortest_within <= 0.0 and self.push_cost <= 0.0:
+        if not self.counts_pushes():
             return self.best
         costs = self.tree.cost[: self.tree.size]
         depths = self.tree.depths()
