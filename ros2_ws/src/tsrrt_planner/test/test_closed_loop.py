@@ -14,6 +14,7 @@ from tsrrt_executor.push_primitives import ball_path_points, push_geometry
 from tsrrt_executor.reachability import default_map
 from tsrrt_planner import closed_loop
 from tsrrt_planner.closed_loop import (
+    MIN_MEASURED_SHARE,
     ExecutionFailed,
     LearningArea,
     PredictionTracker,
@@ -396,7 +397,8 @@ def test_a_push_its_model_does_not_explain_is_learned_from_clipped() -> None:
     gate = PredictionTracker(load_scenario("clean").objects)
     before = Pose2D(0.4, 0.0, 0.3)
     bumped = PushOutcome(before, before.apply_displacement(np.array([0.03, 0.0, 0.21])))
-    assert not update_model_with_push(store, "eraser", "eraser", 1, 0.03, bumped, gate=gate)
+    assert update_model_with_push(store, "eraser", "eraser", 1, 0.03, bumped,
+                                  gate=gate) == "clipped"
     model = store.get("eraser", 1)
     limit = math.radians(2.0) + 3.0 * math.sqrt(2e-6 / 3) * 0.6     # for a 3-cm push
     assert model.count == 4
@@ -404,12 +406,30 @@ def test_a_push_its_model_does_not_explain_is_learned_from_clipped() -> None:
     usual = np.array([0.032, 0.002, 0.02])
     assert update_model_with_push(store, "eraser", "eraser", 1, 0.03,
                                   PushOutcome(before, before.apply_displacement(usual)),
-                                  gate=gate)
+                                  gate=gate) == "folded"
     # without the gate, or with too few trials of its own to judge by, it is folded in whole
     few = ModelStore([ForwardModel("eraser", 1, 0.05, 2, np.array([0.05, 0.0, 0.0]),
                                    np.full(3, 1e-8))], {"eraser": "eraser"})
-    assert update_model_with_push(few, "eraser", "eraser", 1, 0.03, bumped, gate=gate)
+    assert update_model_with_push(few, "eraser", "eraser", 1, 0.03, bumped,
+                                  gate=gate) == "folded"
     np.testing.assert_allclose(few.get("eraser", 1).mean[2], 0.21 / 0.6 / 3, rtol=1e-9)
+
+
+def test_a_push_too_short_to_measure_leaves_its_model_as_it_was() -> None:
+    """A 5-mm push rescaled to 5 cm multiplies what perception sees of it by ten: a 0.5-deg
+    turn would enter the model as 5 deg. Pushes under MIN_MEASURED_SHARE of the model's length
+    are executed and checked, but not learned from; from that share on they are."""
+    model = ForwardModel("eraser", 1, 0.05, 10, np.array([0.05, 0.0, 0.0]), np.full(3, 1e-6))
+    store = ModelStore([model], {"eraser": "eraser"})
+    before = Pose2D(0.4, 0.0, 0.3)
+    short = MIN_MEASURED_SHARE * 0.05 * 0.9
+    turned = PushOutcome(before, before.apply_displacement(np.array([short, 0.0, 0.009])))
+    assert update_model_with_push(store, "eraser", "eraser", 1, short, turned) == "too short"
+    assert store.get("eraser", 1) is model
+    enough = MIN_MEASURED_SHARE * 0.05
+    moved = PushOutcome(before, before.apply_displacement(np.array([enough, 0.0, 0.0])))
+    assert update_model_with_push(store, "eraser", "eraser", 1, enough, moved) == "folded"
+    assert store.get("eraser", 1).count == 11
 
 
 def test_push_planned_with_a_mirrored_model_starts_the_objects_own() -> None:

@@ -65,6 +65,7 @@ from tsrrt_interfaces.msg import ForwardModel as ForwardModelMsg
 from tsrrt_interfaces.msg import ForwardModelArray, ObjectState, ObjectStateArray, Plan, PlanStep
 from tsrrt_interfaces.srv import GetSettledObjects
 from tsrrt_planner.closed_loop import (
+    MIN_MEASURED_SHARE,
     ExecutionFailed,
     LearningArea,
     LearningProgress,
@@ -810,6 +811,10 @@ class PlannerNode(Node):
             self.get_logger().info(
                 f"{report.clipped} executed pushes learned from clipped to their model's "
                 "confidence (a neighbour or the table edge in the way?)")
+        if report.unmeasured:
+            self.get_logger().info(
+                f"{report.unmeasured} executed pushes too short to learn from (under "
+                f"{MIN_MEASURED_SHARE:.0%} of their model's length)")
         last = report.visited[-1]
         result.final_objects = [_object_state(spec, last[spec.id])
                                 for spec in self.scenario.objects]
