@@ -49,7 +49,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 
@@ -119,6 +119,9 @@ GATE_MIN_TRIALS = 3
 # the 90th percentile 2.9 deg, where pushes of 1-5.5 cm had 1.2-1.3 deg; a model of 10 pushes
 # with a 0.5-deg spread that takes one 13-deg sample ends with a 4-deg spread.
 MIN_MEASURED_SHARE = 0.2
+
+# what update_model_with_push did with an executed push
+Folded = Literal["folded", "clipped", "too short"]
 
 
 class ExecutionFailed(PlannerError):
@@ -418,7 +421,7 @@ def _models(spec: ObjectSpec, statistics: Mapping[int, DisplacementStats],
 
 def update_model_with_push(store: ModelStore, object_class: str, object_id: str, primitive: int,
                            push_length: float, outcome: PushOutcome,
-                           gate: PredictionTracker | None = None) -> str:
+                           gate: PredictionTracker | None = None) -> Folded:
     """Fold an executed plan push into its model (Eq. 9), rescaled to the nominal push length.
     Returns "folded", "clipped" (`gate` clipped it) or "too short" (shorter than
     MIN_MEASURED_SHARE of the model's length: not folded in, its rescaled displacement would
