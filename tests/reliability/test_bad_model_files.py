@@ -80,7 +80,10 @@ FILE_CASES: list[tuple[str, str | bytes, str]] = [
     ("model without m2", changed(lambda d: model(d).pop("m2")),
      "objects.scale.primitives.1: expected exactly push_length, count, mean, m2"),
     ("object without a class", changed(lambda d: d["objects"]["scale"].pop("class")),
-     "objects.scale: expected exactly the fields 'class' and 'primitives'"),
+     "objects.scale: expected the fields 'class' and 'primitives', and optionally "
+     "'longest_push'"),
+    ("push cap of 50 cm", changed(lambda d: d["objects"]["scale"].update(longest_push=0.5)),
+     "objects.scale.longest_push: expected a length in"),
 ]
 
 

@@ -39,7 +39,7 @@ from tsrrt_planner.model_learning import (
     ModelStore,
     mirrored,
 )
-from tsrrt_planner.problem import PlanningProblem
+from tsrrt_planner.problem import MAX_PLANNED_PUSH, PlanningProblem
 from tsrrt_planner.push_rule import SimulatedPusher, learn_all
 from tsrrt_planner.reachability import AnnulusReachability
 from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT
@@ -748,6 +748,68 @@ def test_task_loop_replans_when_the_pushed_object_itself_is_bumped() -> None:
     assert report.pushes >= 2
     assert any(d.reason == "outside the model's confidence" for d in report.divergences)
     assert report.replans >= 1
+
+
+class _RobotTurningOnLongPushes(_SimulatedRobot):
+    """Pushes longer than `longer_than` turn their object 0.2 rad more than the push rule says,
+    as the eraser's worst 10-cm pushes did in the simulator: not linear in the push length."""
+
+    def __init__(self, scenario, seed: int, longer_than: float) -> None:
+        super().__init__(scenario, seed)
+        self.longer_than = longer_than
+
+    def execute(self, object_id: str, primitive: int, push_length: float) -> PushOutcome:
+        outcome = super().execute(object_id, primitive, push_length)
+        if push_length <= self.longer_than:
+            return outcome
+        pose = self.pusher.poses[object_id]
+        self.pusher.poses[object_id] = Pose2D(pose.x, pose.y, pose.theta + 0.2)
+        return PushOutcome(outcome.before, self.pusher.poses[object_id])
+
+
+@pytest.mark.parametrize("length,longer_than,capped", [
+    (0.08, 0.06, True),     # a long push that turned the object off: held to 5 cm
+    (0.05, 0.0, False),     # the same miss at the learned length: the model says nothing longer
+    (0.08, 1.0, False),     # a long push off in position only (the plan expected no motion)
+])
+def test_an_object_whose_long_push_turned_it_off_is_held_to_the_learned_length(
+        monkeypatch, length: float, longer_than: float, capped: bool) -> None:
+    """A plan of one platter_1 push whose predicted states stand still, so that the task
+    replans after it; the next plan is empty. The cap must reach the next plan's problem and
+    the model file (saved through on_model_update)."""
+    from tsrrt_planner.task_space_rrt import PlanResult, PlanStep
+
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    robot = _RobotTurningOnLongPushes(scenario, seed=1, longer_than=longer_than)
+    platter = [o.id for o in scenario.objects].index("platter_1")
+    start = PlanningProblem(scenario_at(scenario, robot.observe()), store, AnnulusReachability())
+    primitive = next(p for p in range(1, 5) if start.pushes_valid(
+        start.start, np.array([platter]), np.array([p]), np.array([0.08]))[0])
+    longest: list[float] = []
+
+    def scripted_plan_from(scenario_, poses, store_, *args, **kwargs):
+        problem = PlanningProblem(scenario_at(scenario_, poses), store_, AnnulusReachability())
+        longest.append(float(problem.max_lengths[platter]))
+        steps = () if robot.pushes else (PlanStep("platter_1", primitive, length),)
+        states = np.stack([problem.start] * (len(steps) + 1))
+        costs = np.array([float(problem.objective.cost(problem.start))] * (len(steps) + 1))
+        costs[1:] -= 0.5
+        return problem, PlanResult("tsrrt", 0, steps, states, costs, 1, 0.0, (), "time")
+
+    monkeypatch.setattr(closed_loop, "plan_from", scripted_plan_from)
+    monkeypatch.setattr(closed_loop, "execution_noise_cost", lambda *args: 0.0)
+    saved: list[dict[str, float]] = []
+    report = run_task(scenario, store, robot, AnnulusReachability(), TaskSettings(), -10.0,
+                      on_model_update=lambda: saved.append(dict(store.push_caps)))
+    assert report.pushes == 1 and report.replans >= 1
+    learned = store.get("platter_1", primitive).push_length
+    assert longest[0] == MAX_PLANNED_PUSH
+    if capped:
+        assert report.capped == ["platter_1"] and store.push_caps == {"platter_1": learned}
+        assert longest[-1] == learned and saved[-1] == {"platter_1": learned}
+    else:
+        assert report.capped == [] and store.push_caps == {} and longest[-1] == MAX_PLANNED_PUSH
 
 
 class _RobotRefusingTheFirstPush(_SimulatedRobot):

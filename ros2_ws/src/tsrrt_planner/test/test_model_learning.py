@@ -179,6 +179,38 @@ def test_bad_model_fields_are_named(tmp_path, store, field, value, message):
         ModelStore.load(path)
 
 
+def test_a_push_cap_survives_the_model_file_and_only_ever_lowers(tmp_path, store):
+    assert store.cap_push("plate_1", 0.05)
+    assert not store.cap_push("plate_1", 0.08)      # a longer cap says nothing new
+    assert store.cap_push("plate_1", 0.04)
+    path = tmp_path / "models.yaml"
+    store.save(path)
+    assert ModelStore.load(path).push_caps == {"plate_1": 0.04}
+
+
+@pytest.mark.parametrize("value,message", [
+    (0.5, r"objects.plate_1.longest_push: expected a length in"),
+    (True, r"objects.plate_1.longest_push: expected a length in"),
+    ("5 cm", r"objects.plate_1.longest_push: expected a length in")])
+def test_a_bad_push_cap_is_named(tmp_path, store, value, message):
+    document = store.to_document()
+    document["objects"]["plate_1"]["longest_push"] = value
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(document))
+    with pytest.raises(ModelFileError, match=message):
+        ModelStore.load(path)
+
+
+def test_an_unknown_object_field_is_named(tmp_path, store):
+    document = store.to_document()
+    document["objects"]["plate_1"]["longest"] = 0.05
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(document))
+    with pytest.raises(ModelFileError, match="objects.plate_1: expected the fields 'class' and "
+                                             "'primitives', and optionally 'longest_push'"):
+        ModelStore.load(path)
+
+
 def test_mismatched_models_are_an_error(store):
     scenario = load_scenario("tset6")
     with pytest.raises(ModelFileError, match="plate_3: no models"):

@@ -1,5 +1,6 @@
 """Planned push lengths: up to 10 cm for an object whose pushes are consistent, no longer than
-learned (5 cm) for one that slips and turns (problem.longest_push)."""
+learned (5 cm) for one that slips and turns, or whose longer push missed in the closed loop
+(problem.longest_push)."""
 
 from __future__ import annotations
 
@@ -56,3 +57,11 @@ def test_an_object_that_slips_is_pushed_no_further_than_learned(scenario):
     result = TASK_SPACE_RRT(problem, "tsrrt", seed=0, time_budget_s=None, max_nodes=400)
     eraser_lengths = [step.push_length for step in result.steps if step.object_id == "eraser"]
     assert eraser_lengths and max(eraser_lengths) <= learned + 1e-9
+
+
+def test_an_object_whose_long_push_missed_is_pushed_no_further_than_learned(scenario):
+    models = ModelStore.load(default_models(scenario))
+    learned = models.get("eraser", 1).push_length
+    models.cap_push("eraser", learned)
+    assert [longest_push(models, spec) for spec in scenario.objects] == [
+        learned if spec.id == "eraser" else MAX_PLANNED_PUSH for spec in scenario.objects]

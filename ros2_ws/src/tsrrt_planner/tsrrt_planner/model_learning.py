@@ -310,6 +310,8 @@ class ModelStore:
         self.classes: dict[str, str] = dict(classes or {})
         # Models assumed without any trial (assume); planned with last, never saved.
         self.assumed: dict[tuple[str, int], ForwardModel] = {}
+        # Longest push (m) per object whose longer pushes missed their prediction (cap_push).
+        self.push_caps: dict[str, float] = {}
         for model in models:
             self.add(model)
 
@@ -322,6 +324,15 @@ class ModelStore:
         """Plan with `model` where nothing learned covers its primitive (model_for's last
         resort); it is not a trial, so it is neither saved nor averaged into what is learned."""
         self.assumed[(model.object_id, model.primitive)] = model
+
+    def cap_push(self, object_id: str, length: float) -> bool:
+        """Plan the object's pushes no longer than `length` from now on: a longer one landed
+        where the linear model did not say, so its models hold only up to what was learned.
+        Kept in the model file. Returns whether this lowered the object's cap."""
+        if length >= self.push_caps.get(object_id, math.inf):
+            return False
+        self.push_caps[object_id] = float(length)
+        return True
 
     def get(self, object_id: str, primitive: int) -> ForwardModel:
         try:
@@ -424,6 +435,9 @@ class ModelStore:
             entry["primitives"][primitive] = {
                 "push_length": float(model.push_length), "count": int(model.count),
                 "mean": [float(v) for v in model.mean], "m2": [float(v) for v in model.m2]}
+        for object_id, cap in sorted(self.push_caps.items()):
+            if object_id in objects:
+                objects[object_id]["longest_push"] = cap
         return {"format": FILE_FORMAT, "version": FILE_VERSION,
                 "units": {"position": "m", "angle": "rad"}, "objects": objects}
 
@@ -480,8 +494,11 @@ class ModelStore:
         store = cls()
         for object_id, entry in objects.items():
             where = f"objects.{object_id}"
-            if not isinstance(entry, dict) or set(entry) != {"class", "primitives"}:
-                raise fail(where, "expected exactly the fields 'class' and 'primitives'")
+            if not isinstance(entry, dict) or not (
+                    {"class", "primitives"} <= set(entry) <= {"class", "primitives",
+                                                              "longest_push"}):
+                raise fail(where, "expected the fields 'class' and 'primitives', and "
+                           "optionally 'longest_push'")
             if not isinstance(entry["class"], str) or not entry["class"]:
                 raise fail(f"{where}.class", "expected a class name")
             primitives = entry["primitives"]
@@ -491,6 +508,13 @@ class ModelStore:
                 model = _parse_model(str(object_id), primitive, raw,
                                      f"{where}.primitives.{primitive}", fail)
                 store.add(model, entry["class"])
+            if "longest_push" in entry:
+                cap = entry["longest_push"]
+                if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not (
+                        MIN_PUSH_LENGTH <= cap <= MAX_PUSH_LENGTH):
+                    raise fail(f"{where}.longest_push", f"expected a length in "
+                               f"[{MIN_PUSH_LENGTH}, {MAX_PUSH_LENGTH}] m, got {cap!r}")
+                store.cap_push(str(object_id), float(cap))
         return store
 
 
