@@ -22,9 +22,13 @@ pytestmark = pytest.mark.integration
 
 rclpy = pytest.importorskip("rclpy")
 from action_msgs.msg import GoalStatus  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from task_graph import TaskGraph, describe, executed_pushes  # noqa: E402
 
 from tsrrt_interfaces.action import RunTask  # noqa: E402
+from tsrrt_interfaces.msg import ForwardModelArray  # noqa: E402
+from tsrrt_planner.model_learning import ModelStore  # noqa: E402
+from tsrrt_planner.problem import longest_push  # noqa: E402
 
 # Largest difference between the true final cost and the cost the last plan predicted. When the
 # task converges, the last plan starts from the final observation and predicts less than 1 %
@@ -58,6 +62,20 @@ def test_run_task_lowers_the_true_cost_and_replans_after_a_bump(graph: TaskGraph
     assert final_cost < start_cost, summary
     assert abs(final_cost - result.predicted_cost) <= PREDICTION_TOLERANCE, summary
     assert result.replans >= 1, summary
+
+
+def test_the_published_models_carry_what_the_planner_plans_with(graph: TaskGraph):
+    """/planner/models (latched) after the task: every model of the saved file, and the longest
+    push the planner plans of its object, the same as longest_push on the saved file (a cap the
+    task set included)."""
+    saved = ModelStore.load(graph.models_path)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    message = graph.probe.next_message(ForwardModelArray, "/planner/models", latched)
+    assert {(m.object_id, m.primitive) for m in message.models} == set(saved.models)
+    for model in message.models:
+        spec = graph.scenario.object(model.object_id)
+        assert model.longest_push == pytest.approx(longest_push(saved, spec)), model
 
 
 def test_no_node_died_or_logged_a_traceback(graph: TaskGraph):

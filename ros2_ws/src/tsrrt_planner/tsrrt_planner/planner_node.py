@@ -89,7 +89,7 @@ from tsrrt_planner.model_learning import (
     learned,
 )
 from tsrrt_planner.objectives import build_objective
-from tsrrt_planner.problem import PlanningProblem, out_of_reach
+from tsrrt_planner.problem import PlanningProblem, longest_push, out_of_reach
 from tsrrt_planner.push_rule import assume_rule_where_uncovered
 from tsrrt_planner.task_space_rrt import MODES, PlanResult
 
@@ -397,6 +397,7 @@ class PlannerNode(Node):
         rule, mirror = self._stopping_rule("", 0), self._mirror_check()
         statistics = {object_id: self._statistics(object_id)
                       for object_id in {object_id for object_id, _ in self.store.models}}
+        longest = {spec.id: longest_push(self.store, spec) for spec in self.scenario.objects}
         message = ForwardModelArray()
         message.header.stamp = self.get_clock().now().to_msg()
         for (object_id, primitive), model in sorted(self.store.models.items()):
@@ -405,7 +406,8 @@ class PlannerNode(Node):
                 primitive=primitive, nominal_push_length=float(model.push_length),
                 samples=int(model.count), mean=[float(v) for v in model.mean],
                 variance=[float(v) for v in model.variance],
-                converged=learned(primitive, statistics[object_id], rule, mirror)))
+                converged=learned(primitive, statistics[object_id], rule, mirror),
+                longest_push=longest.get(object_id, 0.0)))
         return message
 
     def _publish_models(self) -> None:
@@ -815,6 +817,10 @@ class PlannerNode(Node):
             self.get_logger().info(
                 f"{report.unmeasured} executed pushes too short to learn from (under "
                 f"{MIN_MEASURED_SHARE:.0%} of their model's length)")
+        if report.capped:
+            self.get_logger().info(
+                f"pushes of {', '.join(report.capped)} held to the learned length from now on: "
+                "a longer one missed its prediction")
         last = report.visited[-1]
         result.final_objects = [_object_state(spec, last[spec.id])
                                 for spec in self.scenario.objects]
