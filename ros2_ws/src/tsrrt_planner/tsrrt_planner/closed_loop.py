@@ -468,14 +468,16 @@ class Divergence:
 
 def cap_after_long_push(store: ModelStore, step: PlanStep, learned_length: float,
                         divergences: Sequence[Divergence]) -> bool:
-    """Hold an object to its learned push length once a longer push of it was followed by its
-    divergence (ModelStore.cap_push); returns whether its cap is new.
+    """Hold an object to its learned push length once a longer push of it left its heading
+    outside the divergence limit (ModelStore.cap_push); returns whether its cap is new.
 
     Beyond the learned length the planner extrapolates the model linearly, which `longest_push`
     allows for an object whose 5-cm trials scatter little. Two to four trials do not show that
     a light box turns more than linearly with length: the eraser's 73 executed pushes over 7 cm
     in sessions 37-39's clean demos turned it 6.5 deg (median) where its 5-cm pushes turned it
-    1.0 deg, and two of the three replans of a fresh clean run followed such pushes."""
+    1.0 deg, and in 8 of 8 fresh clean runs (session 40) a 10-cm eraser push 10 deg off was
+    followed by a second eraser replan. The heading, because turning is what such pushes get
+    wrong; a position miss alone is as often a neighbour or the table edge."""
     longer = step.push_length > learned_length * (1.0 + 1e-6)
     missed = any(d.object_id == step.object_id and d.reason == OUTSIDE_CONFIDENCE
                  and d.heading_off for d in divergences)

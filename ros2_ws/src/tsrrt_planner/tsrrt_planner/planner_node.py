@@ -820,7 +820,7 @@ class PlannerNode(Node):
         if report.capped:
             self.get_logger().info(
                 f"pushes of {', '.join(report.capped)} held to the learned length from now on: "
-                "a longer one missed its prediction")
+                "a longer one turned the object outside its prediction")
         last = report.visited[-1]
         result.final_objects = [_object_state(spec, last[spec.id])
                                 for spec in self.scenario.objects]
