@@ -1,6 +1,6 @@
 """Planned push lengths: up to 10 cm for an object whose pushes are consistent, no longer than
-learned (5 cm) for one that slips and turns, or whose longer push missed in the closed loop
-(problem.longest_push)."""
+learned (5 cm) for one that slips and turns, or whose longer push turned it outside its
+prediction in the closed loop (problem.longest_push)."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def test_an_object_that_slips_is_pushed_no_further_than_learned(scenario):
     assert eraser_lengths and max(eraser_lengths) <= learned + 1e-9
 
 
-def test_an_object_whose_long_push_missed_is_pushed_no_further_than_learned(scenario):
+def test_an_object_held_to_the_learned_length_is_pushed_no_further(scenario):
     models = ModelStore.load(default_models(scenario))
     learned = models.get("eraser", 1).push_length
     models.cap_push("eraser", learned)

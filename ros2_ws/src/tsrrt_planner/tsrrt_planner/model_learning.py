@@ -310,7 +310,7 @@ class ModelStore:
         self.classes: dict[str, str] = dict(classes or {})
         # Models assumed without any trial (assume); planned with last, never saved.
         self.assumed: dict[tuple[str, int], ForwardModel] = {}
-        # Longest push (m) per object whose longer pushes missed their prediction (cap_push).
+        # Longest push (m) per object whose longer push turned it off its prediction (cap_push).
         self.push_caps: dict[str, float] = {}
         for model in models:
             self.add(model)
@@ -326,7 +326,7 @@ class ModelStore:
         self.assumed[(model.object_id, model.primitive)] = model
 
     def cap_push(self, object_id: str, length: float) -> bool:
-        """Plan the object's pushes no longer than `length` from now on: a longer one landed
+        """Plan the object's pushes no longer than `length` from now on: a longer one turned it
         where the linear model did not say, so its models hold only up to what was learned.
         Kept in the model file. Returns whether this lowered the object's cap."""
         if length >= self.push_caps.get(object_id, math.inf):

@@ -8,7 +8,8 @@ metre, so steering a push towards a target is a one-dimensional least-squares pr
 
 A push is valid when (all checked in `pushes_valid`, vectorised over candidates):
 * it is no longer than the object's `longest_push` (the learned length, or twice that for an
-  object whose pushes are consistent and none of whose longer pushes missed in the closed loop);
+  object whose pushes are consistent and whose longer pushes have not turned it off in the
+  closed loop);
 * the object ends on the table, clear of every other object and obstacle (collision.py), and so
   does every intermediate pose at most `max_substep` of travel apart (no tunnelling through a
   neighbour during a long push);
@@ -118,8 +119,8 @@ def longest_push(models: ModelStore, spec: ObjectSpec) -> float:
     5 cm turns more than linearly with length (eraser: mean |dtheta| 2.8 deg under 4.5 cm,
     7.8 deg beyond 7 cm), and in the closed loop its 8-10 cm pushes ended 1-2.6 cm off and
     forced replans; such an object is pushed no further than it was learned. Nor is one whose
-    executed longer push missed its prediction in the closed loop (ModelStore.cap_push): a
-    few 5-cm trials cannot tell that the eraser is such an object."""
+    executed longer push turned it outside its prediction in the closed loop
+    (ModelStore.cap_push): a few 5-cm trials cannot tell that the eraser is such an object."""
     lengths = []
     translations = [p for p in primitives_for(spec.shape) if p <= 4]  # along x (1, 2), y (3, 4)
     for primitive in translations:
