@@ -509,12 +509,8 @@ class ModelStore:
                                      f"{where}.primitives.{primitive}", fail)
                 store.add(model, entry["class"])
             if "longest_push" in entry:
-                cap = entry["longest_push"]
-                if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not (
-                        MIN_PUSH_LENGTH <= cap <= MAX_PUSH_LENGTH):
-                    raise fail(f"{where}.longest_push", f"expected a length in "
-                               f"[{MIN_PUSH_LENGTH}, {MAX_PUSH_LENGTH}] m, got {cap!r}")
-                store.cap_push(str(object_id), float(cap))
+                store.cap_push(str(object_id), _push_length(entry["longest_push"],
+                                                            f"{where}.longest_push", fail))
         return store
 
 
@@ -537,10 +533,15 @@ def _parse_model(object_id: str, primitive: Any, raw: Any, where: str,
         vectors.append(np.array(value, dtype=float))
     if np.any(vectors[1] < 0):
         raise fail(f"{where}.m2", "sums of squared deviations cannot be negative")
-    length = raw["push_length"]
-    if isinstance(length, bool) or not isinstance(length, (int, float)) or not (
-            MIN_PUSH_LENGTH <= length <= MAX_PUSH_LENGTH):
-        raise fail(f"{where}.push_length", f"expected a length in [{MIN_PUSH_LENGTH}, "
-                   f"{MAX_PUSH_LENGTH}] m, got {length!r}")
-    return ForwardModel(object_id, primitive, float(length), count, vectors[0], vectors[1])
+    length = _push_length(raw["push_length"], f"{where}.push_length", fail)
+    return ForwardModel(object_id, primitive, length, count, vectors[0], vectors[1])
+
+
+def _push_length(value: Any, where: str, fail: Callable[[str, str], ModelFileError]) -> float:
+    """A push length of a model file, in [MIN_PUSH_LENGTH, MAX_PUSH_LENGTH] metres."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+            MIN_PUSH_LENGTH <= value <= MAX_PUSH_LENGTH):
+        raise fail(where, f"expected a length in [{MIN_PUSH_LENGTH}, {MAX_PUSH_LENGTH}] m, "
+                   f"got {value!r}")
+    return float(value)
 
