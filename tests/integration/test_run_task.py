@@ -22,8 +22,7 @@ pytestmark = pytest.mark.integration
 
 rclpy = pytest.importorskip("rclpy")
 from action_msgs.msg import GoalStatus  # noqa: E402
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from task_graph import TaskGraph, describe, executed_pushes  # noqa: E402
+from task_graph import LATCHED, TaskGraph, describe, executed_pushes  # noqa: E402
 
 from tsrrt_interfaces.action import RunTask  # noqa: E402
 from tsrrt_interfaces.msg import ForwardModelArray  # noqa: E402
@@ -69,9 +68,7 @@ def test_the_published_models_carry_what_the_planner_plans_with(graph: TaskGraph
     push the planner plans of its object, the same as longest_push on the saved file (a cap the
     task set included)."""
     saved = ModelStore.load(graph.models_path)
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    message = graph.probe.next_message(ForwardModelArray, "/planner/models", latched)
+    message = graph.probe.next_message(ForwardModelArray, "/planner/models", LATCHED)
     assert {(m.object_id, m.primitive) for m in message.models} == set(saved.models)
     for model in message.models:
         spec = graph.scenario.object(model.object_id)
