@@ -123,7 +123,6 @@ MIN_MEASURED_SHARE = 0.2
 
 # what update_model_with_push did with an executed push
 Folded = Literal["folded", "clipped", "too short"]
-OUTSIDE_CONFIDENCE = "outside the model's confidence"   # a pushed object's divergence
 
 
 class ExecutionFailed(PlannerError):
@@ -479,8 +478,7 @@ def cap_after_long_push(store: ModelStore, step: PlanStep, learned_length: float
     followed by a second eraser replan. The heading, because turning is what such pushes get
     wrong; a position miss alone is as often a neighbour or the table edge."""
     longer = step.push_length > learned_length * (1.0 + 1e-6)
-    missed = any(d.object_id == step.object_id and d.reason == OUTSIDE_CONFIDENCE
-                 and d.heading_off for d in divergences)
+    missed = any(d.object_id == step.object_id and d.heading_off for d in divergences)
     return longer and missed and store.cap_push(step.object_id, learned_length)
 
 
@@ -539,7 +537,7 @@ class PredictionTracker:
                 self.angle_variance.get(spec.id, 0.0))
             if position_error > position_limit or angle_error > angle_limit:
                 reason = ("moved although not pushed" if spec.id not in self.position_variance
-                          else OUTSIDE_CONFIDENCE)
+                          else "outside the model's confidence")
                 problems.append(Divergence(spec.id, position_error, angle_error, reason,
                                            heading_off=angle_error > angle_limit))
         return problems
