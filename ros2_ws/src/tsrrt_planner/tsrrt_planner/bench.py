@@ -6,8 +6,11 @@
 
 Prints one row per planner (medians over seeds): time and nodes to <= 5 % and <= 1 % gap
 ("never" when the median run never got there), gap at 1 s and at the budget, cost at the budget,
-nodes per second, pushes in the returned plan. Against a zero optimum (the obstacle task) a
-relative gap means nothing: gaps are n/a (null in the JSON) and the cost tells how close it got.
+nodes per second (of all workers), pushes in the returned plan. A planner named `NAME:K`
+(e.g. `tsrrt:2`) runs K seeds of NAME at once, one process each, and keeps the best plan
+(`parallel.plan_in_parallel`); nodes and times count all of them. Against a zero optimum (the
+obstacle task) a relative gap means nothing: gaps are n/a (null in the JSON) and the cost tells
+how close it got.
 The JSON holds `lower_bound` and one `results` entry per planner and seed. Forward models come
 from data/models/<scenario name>.yaml unless --models is given.
 
@@ -44,9 +47,10 @@ from tsrrt_common.scenario import Scenario, load_scenario  # noqa: E402
 from tsrrt_planner.errors import PlannerError  # noqa: E402
 from tsrrt_planner.lower_bound import lower_bound  # noqa: E402
 from tsrrt_planner.model_learning import ModelStore  # noqa: E402
+from tsrrt_planner.parallel import plan_in_parallel  # noqa: E402
 from tsrrt_planner.problem import PlanningProblem  # noqa: E402
 from tsrrt_planner.push_rule import assume_rule_where_uncovered  # noqa: E402
-from tsrrt_planner.task_space_rrt import MODES, TASK_SPACE_RRT, PlanResult  # noqa: E402
+from tsrrt_planner.task_space_rrt import MODES, PlanResult  # noqa: E402
 
 OMPL_PLANNERS = ("ompl-sst", "ompl-rrt")
 
@@ -112,20 +116,31 @@ def gap_at(result: PlanResult, seconds: float) -> float | None:
     return result.gap(cost)
 
 
+def parse_planner(spec: str) -> tuple[str, int] | None:
+    """(mode, workers) of 'NAME' or 'NAME:K' (K >= 1 workers of one of MODES); None when
+    `spec` names no planner."""
+    name, _, count = spec.partition(":")
+    if not count:
+        return (name, 1) if name in MODES + OMPL_PLANNERS else None
+    if name not in MODES or not count.isdigit() or int(count) < 1:
+        return None
+    return name, int(count)
+
+
 def run_planner(problem: PlanningProblem, planner: str, seed: int, budget_s: float,
                 bound: Any) -> PlanResult:
-    if planner in OMPL_PLANNERS:
+    mode, workers = parse_planner(planner)
+    if mode in OMPL_PLANNERS:
         from tsrrt_planner.ompl_baseline import plan_with_ompl
-        return plan_with_ompl(problem, planner.removeprefix("ompl-"), seed, budget_s,
-                              bound.cost)
-    return TASK_SPACE_RRT(problem, planner, seed, time_budget_s=budget_s,
-                          lower_bound_cost=bound.cost, target=bound.state)
+        return plan_with_ompl(problem, mode.removeprefix("ompl-"), seed, budget_s, bound.cost)
+    return plan_in_parallel(problem, workers, mode, seed, time_budget_s=budget_s,
+                            lower_bound_cost=bound.cost, target=bound.state)
 
 
-def summarise(result: PlanResult) -> dict[str, Any]:
+def summarise(planner: str, result: PlanResult) -> dict[str, Any]:
     t5, n5 = time_and_nodes_to(result, 0.05)
     t1, n1 = time_and_nodes_to(result, 0.01)
-    return {"planner": result.mode, "seed": result.seed, "time_to_5pct_s": t5,
+    return {"planner": planner, "seed": result.seed, "time_to_5pct_s": t5,
             "time_to_1pct_s": t1, "nodes_to_5pct": n5, "nodes_to_1pct": n1,
             "gap_at_1s": gap_at(result, 1.0), "gap_final": result.gap(),
             "nodes_per_s": result.nodes / max(result.elapsed_s, 1e-9),
@@ -194,9 +209,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="plan each seed from a start this far (m, rad) from the scenario's")
     args = parser.parse_args(argv)
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
-    unknown = [p for p in planners if p not in MODES + OMPL_PLANNERS]
+    unknown = [p for p in planners if parse_planner(p) is None]
     if unknown:
-        parser.error(f"unknown planners {unknown}; known: {list(MODES + OMPL_PLANNERS)}")
+        parser.error(f"unknown planners {unknown}; known: {list(MODES + OMPL_PLANNERS)}, "
+                     f"and NAME:K for K workers of {list(MODES)}")
     if args.seeds < 1 or not args.budget_s > 0:
         parser.error("--seeds must be >= 1 and --budget-s > 0")
     jitter = None
@@ -233,7 +249,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             except PlannerError as error:
                 skipped.append(f"{planner}: {error}")
                 break
-            rows.append(summarise(result))
+            rows.append(summarise(planner, result))
             rows[-1]["start_cost"] = float(result.costs[0])
             gap = rows[-1]["gap_final"]
             print(f"  {planner} seed {seed}: cost {rows[-1]['final_cost']:.4f}"
