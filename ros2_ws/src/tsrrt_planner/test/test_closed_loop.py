@@ -513,14 +513,14 @@ def test_a_first_plan_far_above_the_bound_is_made_again_with_the_next_seed(monke
     task makes the first plan again with seed 1 and executes that one."""
     seeds = []
 
-    def first_one_fails(problem, mode, seed, **kwargs):
+    def first_one_fails(problem, workers, mode, seed, **kwargs):
         seeds.append(seed)
         if len(seeds) == 1:
             kwargs["max_nodes"] = 1
             mode = "paper-nogd"
         return TASK_SPACE_RRT(problem, mode, seed, **kwargs)
 
-    monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", first_one_fails)
+    monkeypatch.setattr(closed_loop, "plan_in_parallel", first_one_fails)
     scenario = load_scenario("tset3")
     store = learn_all(scenario.objects, seed=0)
     bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
@@ -536,14 +536,14 @@ def test_a_first_plan_far_above_the_bound_is_made_again_with_the_next_seed(monke
 def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
     budgets, deadlines, stalls, starts = [], [], [], []
 
-    def recording(*args, **kwargs):
+    def recording(problem, workers, mode, seed, **kwargs):
         budgets.append(kwargs["time_budget_s"])
         deadlines.append(kwargs["soft_deadline"])
         stalls.append(kwargs["stall"])
-        starts.append(float(args[0].objective.cost(args[0].start)))
-        return TASK_SPACE_RRT(*args, **kwargs)
+        starts.append(float(problem.objective.cost(problem.start)))
+        return TASK_SPACE_RRT(problem, mode, seed, **kwargs)
 
-    monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", recording)
+    monkeypatch.setattr(closed_loop, "plan_in_parallel", recording)
     scenario = load_scenario("tset3")
     store = learn_all(scenario.objects, seed=0)
     bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
@@ -566,11 +566,11 @@ def test_the_first_plan_gets_the_first_plan_budget(monkeypatch) -> None:
 def test_plans_charge_their_pushes_a_share_of_the_gain_a_push_must_make(monkeypatch) -> None:
     charges = []
 
-    def recording(*args, **kwargs):
-        charges.append((float(args[0].objective.cost(args[0].start)), kwargs["push_cost"]))
-        return TASK_SPACE_RRT(*args, **kwargs)
+    def recording(problem, workers, mode, seed, **kwargs):
+        charges.append((float(problem.objective.cost(problem.start)), kwargs["push_cost"]))
+        return TASK_SPACE_RRT(problem, mode, seed, **kwargs)
 
-    monkeypatch.setattr(closed_loop, "TASK_SPACE_RRT", recording)
+    monkeypatch.setattr(closed_loop, "plan_in_parallel", recording)
     scenario = load_scenario("tset3")
     store = learn_all(scenario.objects, seed=0)
     bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
@@ -585,6 +585,24 @@ def test_plans_charge_their_pushes_a_share_of_the_gain_a_push_must_make(monkeypa
     assert charged == pytest.approx(0.5 * settings.convergence * scale
                                     / settings.pushes_per_convergence)
     assert free == 0.0
+
+
+def test_plans_search_as_many_seeds_at_once_as_the_settings_ask() -> None:
+    """Worker 0 is the one-worker search (a node budget), so two workers plan no worse."""
+    scenario = load_scenario("tset3")
+    store = learn_all(scenario.objects, seed=0)
+    bound = lower_bound(PlanningProblem(scenario, store, AnnulusReachability()), starts=8, seed=0)
+    poses = {o.id: o.pose for o in scenario.objects}
+    plans = [plan_from(scenario, poses, store, AnnulusReachability(),
+                       TaskSettings(planning_max_nodes=40, planning_workers=workers),
+                       bound.cost, bound.state, lambda: False)[1] for workers in (1, 2)]
+    assert plans[0].nodes == 40 and plans[1].nodes == 80
+    settings = TaskSettings()
+    start = float(plans[0].costs[0])
+    push_cost = (settings.push_cost_share * settings.convergence
+                 * max(abs(start), start - bound.cost) / settings.pushes_per_convergence)
+    charged = [plan.best_cost + push_cost * len(plan.steps) for plan in plans]
+    assert charged[1] <= charged[0]
 
 
 def test_task_loop_lowers_the_cost_and_converges() -> None:

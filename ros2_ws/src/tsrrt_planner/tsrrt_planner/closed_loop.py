@@ -79,11 +79,11 @@ from tsrrt_planner.model_learning import (
     StoppingRule,
     learned,
 )
+from tsrrt_planner.parallel import plan_in_parallel
 from tsrrt_planner.problem import PlanningProblem, push_in_reach
 from tsrrt_planner.push_rule import plausible_displacement, transfer_efficiency
 from tsrrt_planner.reachability import Reachability
 from tsrrt_planner.task_space_rrt import (
-    TASK_SPACE_RRT,
     GiveUpRule,
     PlanResult,
     PlanStep,
@@ -567,6 +567,8 @@ class TaskSettings:
     first_planning_budget_s: float = 0.0
     first_plan_gap: float = 0.10
     planning_max_nodes: int | None = None  # a node budget makes planning repeatable
+    # Seeds searched at once, one process each (parallel.plan_in_parallel); the best plan wins.
+    planning_workers: int = 1
     max_pushes: int = 150            # the paper's robot executed up to 122 (tset3)
     time_budget_s: float = 600.0
     convergence: float = 0.01         # relative predicted improvement below which we stop
@@ -696,17 +698,17 @@ def plan_from(scenario: Scenario, poses: Mapping[str, Pose2D], store: ModelStore
     if replaced is not None:
         plan, executed = replaced
         warm_start, previous_goal = plan.steps[executed:], plan.states[-1]
-    result = TASK_SPACE_RRT(problem, settings.planner, settings.seed,
-                            time_budget_s=budget_s or settings.planning_budget_s,
-                            max_nodes=max_nodes or settings.planning_max_nodes,
-                            progress=progress, cancel=cancel,
-                            lower_bound_cost=lower_bound_cost, target=target,
-                            warm_start=warm_start, previous_goal=previous_goal,
-                            good_enough_cost=good_enough_cost, stall=stall,
-                            shortest_within=0.5 * least,
-                            push_cost=(settings.push_cost_share * least
-                                       / settings.pushes_per_convergence),
-                            soft_deadline=soft_deadline, give_up=give_up)
+    result = plan_in_parallel(problem, settings.planning_workers, settings.planner,
+                              settings.seed, progress=progress, cancel=cancel,
+                              time_budget_s=budget_s or settings.planning_budget_s,
+                              max_nodes=max_nodes or settings.planning_max_nodes,
+                              lower_bound_cost=lower_bound_cost, target=target,
+                              warm_start=warm_start, previous_goal=previous_goal,
+                              good_enough_cost=good_enough_cost, stall=stall,
+                              shortest_within=0.5 * least,
+                              push_cost=(settings.push_cost_share * least
+                                         / settings.pushes_per_convergence),
+                              soft_deadline=soft_deadline, give_up=give_up)
     return problem, result
 
 

@@ -288,6 +288,9 @@ class PlannerNode(Node):
         declare("planning_margin", 0.005, _float(0.0, 0.1,
                 "clearance plans keep between objects (and the lower bound too), m"))
         declare("planner_seed", 0, _integer(0, 2**31 - 1, "seed of the planner"))
+        declare("planning_workers", 2, _integer(1, 64,
+                "seeds searched at once, one process each; the best plan is kept (a core "
+                "each: more than the machine's cores only slows each search)"))
         declare("max_pushes", 150, _integer(1, 10000, "pushes a RunTask may execute"))
         declare("time_budget_s", 900.0, _float(1.0, 86400.0, "wall time a RunTask may take"))
         declare("convergence", 0.01, _float(0.0, 1.0,
@@ -688,6 +691,7 @@ class PlannerNode(Node):
             pushes_per_convergence=self._param("pushes_per_convergence"),
             push_cost_share=self._param("push_cost_share"),
             seed=seed if seed >= 0 else self._param("planner_seed"),
+            planning_workers=self._param("planning_workers"),
             margin=self._param("planning_margin"))
 
     def _check_models(self, reason: str) -> None:
