@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import os
 import threading
 import time
 from multiprocessing.connection import Connection, wait
@@ -115,17 +116,22 @@ def plan_in_parallel(problem: PlanningProblem, workers: int, mode: str = "tsrrt"
 
 def _search(channel: Connection, stop: Any, problem: PlanningProblem, mode: str, seed: int,
             options: dict[str, Any]) -> None:
-    """One worker: the search, with progress and the result (or its error) sent back."""
+    """One worker: the search, with progress and the result (or its error) sent back. It
+    leaves by os._exit at once: a fork of the planner node must run none of the node's exit
+    handlers, nor flush a stream another of its threads may have held at the fork."""
     began = time.perf_counter()
+    code = 1
     try:
         result = TASK_SPACE_RRT(problem, mode, seed, cancel=stop.is_set,
                                 progress=lambda info: channel.send(("progress", info)),
                                 **options)
         channel.send(("result", (began, result)))
+        code = 0
     except Exception as error:   # raised again by the coordinator
         channel.send(("error", error))
     finally:
         channel.close()
+        os._exit(code)
 
 
 def best_of(results: dict[int, tuple[float, PlanResult]], began: float, push_cost: float,
