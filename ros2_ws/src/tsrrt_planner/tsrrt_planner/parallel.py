@@ -1,10 +1,10 @@
 """TASK_SPACE_RRT on several cores: independent seeds, one process each, the best plan kept.
 
 Why: one search uses one core, and where it ends depends on its seed more than on its length.
-On tset12 at 10 s a fifth of the seeds end within 1 % of the lower bound and a third more than
-10 % above it, stalled in a basin (docs/planner.md, *Parallel searches*). A portfolio of seeds,
-as OMPL's ParallelPlan and MoveIt's parallel planning pipelines run, keeps the best of them in
-the same wall time on a machine with a core to spare.
+On tset12 at 10 s a fifth of the seeds end within 1 % of the lower bound and half end more
+than 10 % above it, stalled in a basin (docs/planner.md, *Parallel searches*). A portfolio of
+seeds, as OMPL's ParallelPlan and MoveIt's parallel planning pipelines run, keeps the best of
+them in the same wall time on a machine with a core to spare.
 
 Each worker is a forked process: it inherits the problem and the compiled kernels, so nothing
 is pickled on the way in and a replan starts in milliseconds; only progress and the result come
