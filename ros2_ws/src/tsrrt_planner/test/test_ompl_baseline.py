@@ -5,17 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.ompl_baseline import plan_with_ompl
-from tsrrt_planner.problem import PlanningProblem
-from tsrrt_planner.push_rule import learn_all
-
-
-@pytest.fixture(scope="module")
-def problem() -> PlanningProblem:
-    scenario = load_scenario("tset3")
-    return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
 
 
 @pytest.mark.parametrize("planner", ["sst", "rrt"])

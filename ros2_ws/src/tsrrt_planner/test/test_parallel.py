@@ -8,24 +8,9 @@ import threading
 import numpy as np
 import pytest
 
-from tsrrt_common.scenario import load_scenario
 from tsrrt_planner.errors import PlannerError
-from tsrrt_planner.lower_bound import lower_bound
 from tsrrt_planner.parallel import SEED_STRIDE, plan_in_parallel
-from tsrrt_planner.problem import PlanningProblem
-from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, simulate
-
-
-@pytest.fixture(scope="module")
-def problem() -> PlanningProblem:
-    scenario = load_scenario("tset3")
-    return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
-
-
-@pytest.fixture(scope="module")
-def bound(problem):
-    return lower_bound(problem, starts=4)
 
 
 def test_the_best_of_the_workers_seeds_is_returned(problem, bound):

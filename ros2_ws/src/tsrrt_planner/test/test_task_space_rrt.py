@@ -47,17 +47,6 @@ from tsrrt_planner.task_space_rrt import (
 )
 
 
-@pytest.fixture(scope="module")
-def problem() -> PlanningProblem:
-    scenario = load_scenario("tset3")
-    return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
-
-
-@pytest.fixture(scope="module")
-def bound(problem):
-    return lower_bound(problem, starts=4)
-
-
 def tsrrt_search(problem: PlanningProblem, max_nodes: int = 100,
                  target: np.ndarray | None = None) -> _TsrrtSearch:
     """The tsrrt search itself, for tests of its steps (weights as TASK_SPACE_RRT gives them)."""
