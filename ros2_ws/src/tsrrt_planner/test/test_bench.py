@@ -39,17 +39,21 @@ def test_a_jitter_that_leaves_no_valid_start_is_an_error(tset3) -> None:
         jittered_problem(scenario, models, (1.0, 0.0), seed=0)
 
 
-def test_the_bench_plans_every_planner_from_the_seed_s_jittered_start(tmp_path) -> None:
+def test_the_bench_plans_every_planner_from_the_seed_s_jittered_start(tmp_path,
+                                                                      tset3) -> None:
     out = tmp_path / "bench.json"
     main(["--scenario", "tset3", "--planners", "tsrrt,greedy", "--seeds", "2",
-          "--budget-s", "0.3", "--lb-starts", "2", "--start-jitter", "0.02,0.2",
-          "--json", str(out)])
+          "--first-seed", "5", "--budget-s", "0.3", "--lb-starts", "2",
+          "--start-jitter", "0.02,0.2", "--json", str(out)])
     report = json.loads(out.read_text())
     assert report["start_jitter"] == [0.02, 0.2]
     starts = {(r["planner"], r["seed"]): r["start_cost"] for r in report["results"]}
-    for seed in (0, 1):
+    assert sorted(starts) == [("greedy", 5), ("greedy", 6), ("tsrrt", 5), ("tsrrt", 6)]
+    for seed in (5, 6):
         assert starts[("tsrrt", seed)] == starts[("greedy", seed)] != report["start_cost"]
-    assert starts[("tsrrt", 0)] != starts[("tsrrt", 1)]
+    assert starts[("tsrrt", 5)] != starts[("tsrrt", 6)]
+    seed_5 = jittered_problem(*tset3, (0.02, 0.2), seed=5)
+    assert starts[("tsrrt", 5)] == pytest.approx(seed_5.objective.cost(seed_5.start))
 
 
 def test_primitives_nothing_learned_covers_are_planned_with_the_push_rule(tmp_path,

@@ -11,6 +11,7 @@ nodes per second (of all workers), pushes in the returned plan. A planner named 
 (`parallel.plan_in_parallel`); nodes and times count all of them. Against a zero optimum (the
 obstacle task) a relative gap means nothing: gaps are n/a (null in the JSON) and the cost tells
 how close it got.
+`--first-seed S` runs seeds S .. S + N - 1 (the heuristics were chosen on seeds 0-31).
 The JSON holds `lower_bound` and one `results` entry per planner and seed. Forward models come
 from data/models/<scenario name>.yaml unless --models is given.
 
@@ -201,6 +202,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--scenario", required=True, help="scenario name or YAML path")
     parser.add_argument("--planners", default="paper,paper-nogd,tsrrt,greedy,ompl-sst")
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="seeds FIRST_SEED .. FIRST_SEED + SEEDS - 1 (default 0)")
     parser.add_argument("--budget-s", type=float, default=10.0)
     parser.add_argument("--models", type=Path, help="model file (default: shipped for scenario)")
     parser.add_argument("--json", type=Path, help="write the results here")
@@ -213,8 +216,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     if unknown:
         parser.error(f"unknown planners {unknown}; known: {list(MODES + OMPL_PLANNERS)}, "
                      f"and NAME:K for K workers of {list(MODES)}")
-    if args.seeds < 1 or not args.budget_s > 0:
-        parser.error("--seeds must be >= 1 and --budget-s > 0")
+    if args.seeds < 1 or args.first_seed < 0 or not args.budget_s > 0:
+        parser.error("--seeds must be >= 1, --first-seed >= 0 and --budget-s > 0")
     jitter = None
     if args.start_jitter is not None:
         try:
@@ -236,14 +239,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     print(f"scenario {scenario.name}: {problem.n} objects ({3 * problem.n} DOF), start cost "
           f"{start_cost:.4f}, lower bound {bound.cost:.4f} ({bound.feasible_starts}/"
           f"{bound.starts} feasible starts, {bound.seconds:.1f} s); budget {args.budget_s} s, "
-          f"{args.seeds} seeds" + ("" if jitter is None else
+          f"{args.seeds} seeds from {args.first_seed}" + ("" if jitter is None else
                                   f", starts jittered by +-{jitter[0]} m, +-{jitter[1]} rad"),
           flush=True)
-    starts = [problem if jitter is None else jittered_problem(scenario, models, jitter, seed)
-              for seed in range(args.seeds)]
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    starts = {seed: problem if jitter is None else
+              jittered_problem(scenario, models, jitter, seed) for seed in seeds}
     rows, skipped = [], []
     for planner in planners:
-        for seed in range(args.seeds):
+        for seed in seeds:
             try:
                 result = run_planner(starts[seed], planner, seed, args.budget_s, bound)
             except PlannerError as error:
@@ -262,6 +266,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({
             "scenario": scenario.name, "budget_s": args.budget_s, "seeds": args.seeds,
+            "first_seed": args.first_seed,
             "start_jitter": None if jitter is None else list(jitter),
             "lower_bound": bound.cost, "start_cost": start_cost, "not_run": skipped,
             "results": rows}, indent=2))
