@@ -80,6 +80,13 @@ def test_a_malformed_jitter_is_refused(value: str) -> None:
         main(["--scenario", "tset3", "--start-jitter", value])
 
 
+@pytest.mark.parametrize("arguments", [["--first-seed", "-1"], ["--seeds", "0"]])
+def test_a_negative_first_seed_or_no_seeds_is_refused(arguments: list[str], capsys) -> None:
+    with pytest.raises(SystemExit):
+        main(["--scenario", "tset3", *arguments])
+    assert "--seeds must be >= 1, --first-seed >= 0" in capsys.readouterr().err
+
+
 def _row(planner: str, gap: float | None, cost: float = -1.0) -> dict:
     return {"planner": planner, "seed": 0, "time_to_5pct_s": None, "time_to_1pct_s": None,
             "nodes_to_5pct": None, "nodes_to_1pct": None, "gap_at_1s": gap, "gap_final": gap,

@@ -11,9 +11,11 @@ nodes per second (of all workers), pushes in the returned plan. A planner named 
 (`parallel.plan_in_parallel`); nodes and times count all of them. Against a zero optimum (the
 obstacle task) a relative gap means nothing: gaps are n/a (null in the JSON) and the cost tells
 how close it got.
-`--first-seed S` runs seeds S .. S + N - 1 (the heuristics were chosen on seeds 0-31).
 The JSON holds `lower_bound` and one `results` entry per planner and seed. Forward models come
 from data/models/<scenario name>.yaml unless --models is given.
+
+`--first-seed S` runs seeds S .. S + N - 1: the search's heuristics were chosen on seeds 0-31,
+and other seeds tell whether a change holds beyond them.
 
 `--start-jitter DXY,DTHETA` plans each seed from the scenario's start with every object moved by a
 seeded uniform offset within +-DXY metres and +-DTHETA radians (drawn again until the start is
@@ -239,8 +241,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     print(f"scenario {scenario.name}: {problem.n} objects ({3 * problem.n} DOF), start cost "
           f"{start_cost:.4f}, lower bound {bound.cost:.4f} ({bound.feasible_starts}/"
           f"{bound.starts} feasible starts, {bound.seconds:.1f} s); budget {args.budget_s} s, "
-          f"{args.seeds} seeds from {args.first_seed}" + ("" if jitter is None else
-                                  f", starts jittered by +-{jitter[0]} m, +-{jitter[1]} rad"),
+          f"{args.seeds} seeds from {args.first_seed}"
+          + ("" if jitter is None else
+             f", starts jittered by +-{jitter[0]} m, +-{jitter[1]} rad"),
           flush=True)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     starts = {seed: problem if jitter is None else
