@@ -15,6 +15,7 @@ from tsrrt_planner.reachability import AnnulusReachability
 from tsrrt_planner.rearrange import (
     FIXED_LENGTHS,
     STEER_FRACTIONS,
+    PathMemo,
     approach_blockers,
     blockers_of,
     clear_of_way,
@@ -186,6 +187,49 @@ def test_object_path_into_an_occupied_spot_is_not_reached(problem):
         state = problem.apply(state, o, p, length)
     before = object_error(problem, 0, problem.start[0][None], goal, 0.0)[0]
     assert object_error(problem, 0, state[0][None], goal, 0.0)[0] <= before
+
+
+def test_path_memo_answers_a_repeated_question_without_searching(problem, monkeypatch):
+    """The same arguments are answered from the memo, with the budget tick still run; any
+    other state, goal, tolerance, budget or a new refusal is searched."""
+    searches = []
+
+    def counted(*args, **kwargs):
+        searches.append(args[1:4])
+        return object_path(*args, **kwargs)
+
+    monkeypatch.setattr("tsrrt_planner.rearrange.object_path", counted)
+    memo, ticks = PathMemo(problem), []
+    state, goal = problem.start, problem.start[3] + np.array([0.012, -0.01, 0.0])
+    first = memo.object_path(state, 3, goal, 0.0, lambda: ticks.append(1), 0.004)
+    again = memo.object_path(state.copy(), 3, goal.copy(), 0.0, lambda: ticks.append(1), 0.004)
+    assert again == first and first[0] and len(searches) == 1 and len(ticks) == 2
+    moved = state.copy()
+    moved[0, 0] += 1e-6
+    for question in ((moved, 3, goal, 0.0, lambda: None, 0.004),
+                     (state, 3, goal + 1e-6, 0.0, lambda: None, 0.004),
+                     (state, 3, goal, 0.0, lambda: None, 0.01),
+                     (state, 3, goal, 0.0, lambda: None, 0.004, 16)):
+        memo.object_path(*question)
+    assert len(searches) == 5
+    scenario = load_scenario("tset6")   # a problem of its own to refuse a push in
+    refused = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    refusing = PathMemo(refused)
+    refusing.object_path(state, 3, goal, 0.0, lambda: None, 0.004)
+    refused.refuse(3, 1, state)
+    refusing.object_path(state, 3, goal, 0.0, lambda: None, 0.004)
+    assert len(searches) == 7
+
+
+def test_path_memo_keeps_the_last_answers_asked_for(problem, monkeypatch):
+    searches = []
+    monkeypatch.setattr("tsrrt_planner.rearrange.object_path",
+                        lambda *args, **kwargs: searches.append(args[3][0]) or ([], False))
+    memo = PathMemo(problem, size=2)
+    goals = [problem.start[3] + np.array([0.01 * k, 0.0, 0.0]) for k in range(3)]
+    for k in (0, 1, 0, 2, 0, 1):   # 1 is the least recently asked when 2 comes
+        memo.object_path(problem.start, 3, goals[k], 0.0, lambda: None)
+    assert searches == [goals[0][0], goals[1][0], goals[2][0], goals[1][0]]
 
 
 def test_blockers_and_parking():

@@ -45,6 +45,7 @@ from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.rearrange import (
     OFF_THE_TABLE,
+    PathMemo,
     approach_blockers,
     blockers_of,
     clear_of_way,
@@ -52,7 +53,6 @@ from tsrrt_planner.rearrange import (
     corridor_blocks,
     frees_a_push,
     object_error,
-    object_path,
     parking_poses,
     target_free,
 )
@@ -812,6 +812,7 @@ class _TsrrtSearch(_Search):
                             float(self.problem.objective.cost(target)))
             self.problem = self.problem.with_face_allowance(
                 [kept.state for kept in self.targets], self.groups)
+        self.paths = PathMemo(self.problem)   # REARRANGE's A* searches, asked again and again
 
     def run(self) -> None:
         if self.previous_goal is not None:
@@ -1053,8 +1054,8 @@ class _TsrrtSearch(_Search):
                     continue
                 without = state.copy()
                 without[j, :2] = OFF_THE_TABLE
-                _, reached = object_path(problem, without, i, target[j], self.weights[i],
-                                         self.check_budget, REARRANGE_TOLERANCE)
+                _, reached = self.paths.object_path(without, i, target[j], self.weights[i],
+                                                    self.check_budget, REARRANGE_TOLERANCE)
                 if reached:
                     target[[i, j]] = target[[j, i]]
                     arrangement[[i, j]] = arrangement[[j, i]]
@@ -1081,9 +1082,9 @@ class _TsrrtSearch(_Search):
         for expansions, tried in ((SEARCH_EXPANSIONS, candidates[:MAX_CANDIDATES]),
                                   (LAST_RESORT_EXPANSIONS, candidates[:1])):
             for i in tried:
-                path, reached = object_path(self.problem, self.tree.states[node], i,
-                                            target[i], self.weights[i], self.check_budget,
-                                            REARRANGE_TOLERANCE, max_expansions=expansions)
+                path, reached = self.paths.object_path(
+                    self.tree.states[node], i, target[i], self.weights[i], self.check_budget,
+                    REARRANGE_TOLERANCE, max_expansions=expansions)
                 if reached:
                     pending.remove(i)
                     return self.follow(node, path), True
@@ -1131,8 +1132,8 @@ class _TsrrtSearch(_Search):
                        if frees_a_push(problem, state, j, pose, freed))
             for pose in itertools.islice(freeing, 3):
                 searches += 1
-                path, reached = object_path(problem, state, j, pose, self.weights[j],
-                                            self.check_budget, PARKING_TOLERANCE)
+                path, reached = self.paths.object_path(state, j, pose, self.weights[j],
+                                                       self.check_budget, PARKING_TOLERANCE)
                 if path and not reached:
                     # short of the parking pose may still be out of the way
                     end = simulate_from(problem, state, path)[j]
