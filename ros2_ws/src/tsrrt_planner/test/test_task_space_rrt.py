@@ -668,6 +668,20 @@ def tset6() -> PlanningProblem:
     return PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
 
 
+def test_targets_that_send_a_stranded_object_where_nothing_pushes_it_are_left_out(tset6):
+    """platter_2 starts in the blind spot, where the arm cannot get behind it: a target
+    further out along that push is out of reach from here; aside or back is not."""
+    search, state = tsrrt_search(tset6), tset6.start
+    stranded, direction = tset6.stranded_pushes(state)
+    assert stranded.tolist() == [0, 0, 0, 0, 0, 1]
+    out, aside, back = state.copy(), state.copy(), state.copy()
+    out[5, :2] += 0.05 * direction[5]
+    aside[5, :2] += 0.05 * np.array([-direction[5, 1], direction[5, 0]])
+    back[5, :2] -= 0.05 * direction[5]
+    targets = np.array([out, aside, back, state])
+    assert search.leaves_stranded_in_line(state, targets).tolist() == [False, True, True, True]
+
+
 def starting_at(problem: PlanningProblem, poses: dict[str, tuple[float, float, float]]
                 ) -> PlanningProblem:
     """`problem`'s scenario started from `poses` (every object's), with the same models."""
