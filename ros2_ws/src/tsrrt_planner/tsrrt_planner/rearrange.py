@@ -216,17 +216,17 @@ def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
 def approach_blockers(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                       index: int, weight: float) -> tuple[list[int], list[Push]]:
     """When no push of nominal length that brings object `index` closer to its target is
-    valid: the objects without which one would be, or one of the A*'s shortest pushes that
-    was not (standing where the ball must be), and those pushes. tset6's platter_2, 7 cm off
-    its target in the arm's blind spot, could be pushed back only from its far end, where the
-    plate placed in the corner beside it stood.
+    valid: the objects without which such a push, of nominal length or of the A*'s shortest,
+    would become valid (standing where the ball must be), and those pushes. tset6's
+    platter_2, 7 cm off its target in the arm's blind spot, could be pushed back only from
+    its far end, where the plate placed in the corner beside it stood.
 
     The shortest pushes count because an object the arm cannot get behind may move only a
     little at a time: platter_2, 5 cm aside of its target in the blind spot and turned 3.5
     degrees, drifts back towards the base more than the face rule's 1 mm
     (STRANDED_RETREAT) in a 3-cm push, so only its 1-cm pushes are valid at all, and the
     plate in the corner stood where the ball must be for them. With nominal pushes alone no
-    blocker was found, and 12 of 40 tset6 seeds (1500 nodes) ended 1.3-3.5 % above the bound
+    blocker was found, and 6 of 40 tset6 seeds (1500 nodes) ended 2.0-3.5 % above the bound
     with platter_2 aside."""
     nominal = min(problem.nominal_length, float(problem.max_lengths[index]))
     before = float(object_error(problem, index, state[index][None], target[index], weight)[0])

@@ -978,10 +978,11 @@ class _TsrrtSearch(_Search):
         """(k,) False for the targets (k, n, 3) that would move an object of `state` short of
         one face further than STRANDED_ADVANCE along the push it cannot get
         (PlanningProblem.stranded_pushes): nothing can push it there from here. DIRECTGD keeps
-        such objects on that line (`directgd`), but the equivalent variants of a target and
-        the bound's do not: in 6 of 12 tset6 seeds stuck 1.3-3.5 % above the bound,
-        REARRANGE went on steering towards a target with platter_2, stranded in the blind
-        spot, 9.5 cm further out, and left it 5 cm aside."""
+        such objects on that line (`directgd`), but the bound and the equivalent variants of
+        a target do not: a tset6 search stuck 5 % above the bound went on steering towards
+        a variant with the platters side by side across the table, platter_2 (stranded in the
+        blind spot) 9.5 cm further out. With approach_blockers' short pushes, 40 tset6 seeds
+        reached 1 % in a median 402 nodes against 790 (539 without this rule)."""
         stranded, direction = self.problem.stranded_pushes(state)
         advance = ((targets[..., :2] - state[None, :, :2]) * direction[None]).sum(axis=-1)
         return (advance[:, stranded == 1] <= STRANDED_ADVANCE).all(axis=1)
