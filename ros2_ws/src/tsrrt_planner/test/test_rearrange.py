@@ -28,7 +28,9 @@ from tsrrt_planner.rearrange import (
     object_error,
     object_path,
     parking_poses,
+    straight_sweeps,
     target_free,
+    targets_free,
 )
 from tsrrt_planner.task_space_rrt import (
     equivalent_targets,
@@ -257,6 +259,23 @@ def test_blockers_and_parking():
         gap = problem.checker.shapes.pair_signed_distance(
             np.array([0]), parked[[0]], np.array([1]), parked[[1]])
         assert gap[0] >= problem.checker.margin
+
+
+def test_batched_target_and_sweep_checks_agree_with_one_object_at_a_time(problem):
+    state = problem.start
+    target = state.copy()
+    target[0] = state[1]                     # on plate_2
+    target[2, :2] = state[2, :2] + 0.05      # free
+    indices = np.arange(problem.n)
+    expected = [target_free(problem, state, target, i).all() for i in indices]
+    assert targets_free(problem, state, target, indices).tolist() == expected
+    assert not expected[0]
+    sweeps = straight_sweeps(state, target, np.array([0, 2]))
+    assert sweeps.shape == (2, 8, 3)
+    for row, i in enumerate((0, 2)):
+        np.testing.assert_allclose(sweeps[row, 0], state[i])
+        np.testing.assert_allclose(sweeps[row, -1, :2], target[i, :2])
+        np.testing.assert_allclose(sweeps[row, :, 2], state[i, 2])   # at its current heading
 
 
 def test_an_object_where_the_ball_must_be_is_named_with_the_push_it_blocks():

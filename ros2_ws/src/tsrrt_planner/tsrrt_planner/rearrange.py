@@ -137,7 +137,7 @@ def compile_kernels(problem: PlanningProblem) -> None:
 @cache
 def sweep_fractions(samples: int) -> np.ndarray:
     """np.linspace(0, 1, samples), made once (read-only): a 10-s tset12 search asks for
-    some 20,000 sweeps, and linspace took half of straight_sweep's time."""
+    some 20,000 sweeps, and linspace took half of straight_sweeps' time."""
     fractions = np.linspace(0.0, 1.0, samples)
     fractions.flags.writeable = False
     return fractions
@@ -164,6 +164,18 @@ def target_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                                      np.repeat(target[index][None], len(others), 0), others,
                                      state[others])
     return clear
+
+
+def targets_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
+                 indices: np.ndarray) -> np.ndarray:
+    """(k,) True for each object of `indices` whose target footprint keeps clear of every other
+    object as it stands in `state`: target_free(...).all() for all of them in one batched
+    check (REARRANGE asks it for every pending object at every step)."""
+    n = problem.n
+    rows_a = np.repeat(indices, n - 1)
+    rows_b = np.array([j for i in indices for j in range(n) if j != i], int)
+    clear = footprints_clear(problem, rows_a, target[rows_a], rows_b, state[rows_b])
+    return clear.reshape(len(indices), n - 1).all(axis=1)
 
 
 def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
@@ -243,14 +255,16 @@ def approach_blockers(problem: PlanningProblem, state: np.ndarray, target: np.nd
     if valid[lengths == nominal].any():
         return [], []
     blockers, freed = [], np.zeros(len(primitives), bool)
-    for j in range(problem.n):
+    radius = problem.checker.shapes.bounding_radius
+    within = radius[index] + radius + float(lengths.max()) + 2 * BALL_ROOM
+    for j in np.nonzero(np.linalg.norm(state[:, :2] - state[index, :2], axis=1) < within)[0]:
         if j == index:
             continue
         without = state.copy()
         without[j, :2] = OFF_THE_TABLE
         now_valid = problem.pushes_valid(without, objects, primitives, lengths) & ~valid
         if now_valid.any():
-            blockers.append(j)
+            blockers.append(int(j))
             freed |= now_valid
     return blockers, [(index, int(primitive), float(length))
                       for primitive, length in zip(primitives[freed], lengths[freed], strict=True)]
@@ -268,14 +282,15 @@ def frees_a_push(problem: PlanningProblem, state: np.ndarray, index: int, pose: 
                                      np.array([push[2] for push in pushes])).any())
 
 
-def straight_sweep(state: np.ndarray, target: np.ndarray, index: int,
-                   samples: int = 8) -> np.ndarray:
-    """Poses (samples, 3) of object `index` going straight from its pose in `state` to its
-    target position at its current heading (the corridor it needs, start included)."""
-    fractions = sweep_fractions(samples)[:, None]
-    sweep = np.repeat(state[index][None], samples, 0)
-    sweep[:, :2] += fractions * (target[index, :2] - state[index, :2])
-    return sweep
+def straight_sweeps(state: np.ndarray, target: np.ndarray, indices: np.ndarray,
+                    samples: int = 8) -> np.ndarray:
+    """Poses (k, samples, 3) of each object of `indices` going straight from its pose in
+    `state` to its target position at its current heading (the corridor it needs, start
+    included)."""
+    fractions = sweep_fractions(samples)[None, :, None]
+    sweeps = np.repeat(state[indices][:, None], samples, 1)
+    sweeps[..., :2] += fractions * (target[indices, None, :2] - state[indices, None, :2])
+    return sweeps
 
 
 def crosses_sweeps(problem: PlanningProblem, index: int, poses: np.ndarray,
@@ -297,7 +312,7 @@ def clear_of_way(problem: PlanningProblem, state: np.ndarray, target: np.ndarray
                           np.repeat(target[blocked][None], len(poses), 0))
     alive = np.nonzero(ok)[0]
     ok[alive] = ~crosses_sweeps(problem, index, poses[alive], np.array([blocked]),
-                                straight_sweep(state, target, blocked)[None])[:, 0]
+                                straight_sweeps(state, target, np.array([blocked])))[:, 0]
     return ok
 
 
@@ -307,7 +322,7 @@ def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarra
     """Free poses (k, 3) for object `index` at its current heading, sampled half around it and
     half anywhere on the table: on the table clear of every other object now and of the
     `blocked` object's target and the corridor it sweeps going straight there
-    (straight_sweep). Those clear of the targets of the other pending objects come first, then
+    (straight_sweeps). Those clear of the targets of the other pending objects come first, then
     those crossing the fewest of their corridors, then the nearest. A pose on another pending
     target is a last resort, not ruled out: twelve objects on tset12's table left 277 of 440
     parking attempts without a single pose clear of every pending target, and REARRANGE stuck."""
@@ -332,7 +347,7 @@ def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarra
                   ).reshape(k, m).sum(axis=1)
     crossed = np.zeros(k, int)
     if m:
-        sweeps = np.array([straight_sweep(state, target, j) for j in others])
+        sweeps = straight_sweeps(state, target, others)
         crossed = crosses_sweeps(problem, index, poses, others, sweeps).sum(axis=1)
     distance = np.linalg.norm(poses[:, :2] - state[index, :2], axis=1)
     return poses[np.lexsort((distance, crossed, on_targets))]

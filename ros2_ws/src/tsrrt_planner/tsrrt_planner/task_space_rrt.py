@@ -54,7 +54,7 @@ from tsrrt_planner.rearrange import (
     frees_a_push,
     object_error,
     parking_poses,
-    target_free,
+    targets_free,
 )
 
 MODES = ("paper", "paper-nogd", "tsrrt", "greedy")
@@ -1017,9 +1017,10 @@ class _TsrrtSearch(_Search):
                 break
             state = self.tree.states[node]
             blocks = corridor_blocks(problem, state, arrangement, pending)
+            free = dict(zip(pending, targets_free(problem, state, arrangement,
+                                                  np.array(pending)), strict=True))
             order = sorted(pending, key=lambda i: (
-                bool(blocks[i, pending].any()),
-                not target_free(problem, state, arrangement, i).all(), error(i, state)))
+                bool(blocks[i, pending].any()), not free[i], error(i, state)))
             ready = [i for i in order if not blocks[i, pending].any()]
             swaps = len(swapped)
             swap = None if self.far_from_targets() else functools.partial(
