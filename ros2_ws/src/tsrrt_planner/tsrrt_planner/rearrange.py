@@ -255,6 +255,8 @@ def approach_blockers(problem: PlanningProblem, state: np.ndarray, target: np.nd
     if valid[lengths == nominal].any():
         return [], []
     blockers, freed = [], np.zeros(len(primitives), bool)
+    # only an object close enough to touch it, the ball or the ball's path can block one of
+    # these pushes; one taken off the table elsewhere can only make the face rule stricter
     radius = problem.checker.shapes.bounding_radius
     within = radius[index] + radius + float(lengths.max()) + 2 * BALL_ROOM
     for j in np.nonzero(np.linalg.norm(state[:, :2] - state[index, :2], axis=1) < within)[0]:
