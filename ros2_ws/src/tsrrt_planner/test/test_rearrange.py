@@ -30,7 +30,6 @@ from tsrrt_planner.rearrange import (
     parking_poses,
     straight_sweeps,
     target_free,
-    targets_free,
 )
 from tsrrt_planner.task_space_rrt import (
     equivalent_targets,
@@ -244,7 +243,7 @@ def test_blockers_and_parking():
     state = problem.start
     target = state.copy()
     target[0] = state[1]  # plate_1's target is where plate_2 stands
-    assert not target_free(problem, state, target, 0).all()
+    assert not target_free(problem, state, target, np.array([0]))[0].all()
     assert blockers_of(problem, state, target, 0)[0] == 1
     poses = parking_poses(problem, state, target, 1, [0, 1], np.random.default_rng(0),
                           blocked=0)
@@ -265,11 +264,14 @@ def test_batched_target_and_sweep_checks_agree_with_one_object_at_a_time(problem
     state = problem.start
     target = state.copy()
     target[0] = state[1]                     # on plate_2
-    target[2, :2] = state[2, :2] + 0.05      # free
+    target[2, :2] = state[2, :2] + 0.05
     indices = np.arange(problem.n)
-    expected = [target_free(problem, state, target, i).all() for i in indices]
-    assert targets_free(problem, state, target, indices).tolist() == expected
-    assert not expected[0]
+    expected = np.array([[i == j or footprints_clear(problem, np.array([i]), target[[i]],
+                                                     np.array([j]), state[[j]])[0]
+                          for j in indices] for i in indices])
+    np.testing.assert_array_equal(target_free(problem, state, target, indices), expected)
+    assert expected[indices, indices].all()  # an object's own entry
+    assert not expected[0, 1]   # plate_1's target is where plate_2 stands
     sweeps = straight_sweeps(state, target, np.array([0, 2]))
     assert sweeps.shape == (2, 8, 3)
     for row, i in enumerate((0, 2)):

@@ -155,27 +155,18 @@ def footprints_clear(problem: PlanningProblem, rows_a: np.ndarray, poses_a: np.n
 
 
 def target_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
-                index: int) -> np.ndarray:
-    """(n,) True for objects j whose current footprint keeps clear of `index`'s target
-    footprint (the entry for `index` itself is True)."""
-    others = np.array([j for j in range(problem.n) if j != index], int)
-    clear = np.ones(problem.n, bool)
-    clear[others] = footprints_clear(problem, np.full(len(others), index),
-                                     np.repeat(target[index][None], len(others), 0), others,
-                                     state[others])
-    return clear
-
-
-def targets_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
-                 indices: np.ndarray) -> np.ndarray:
-    """(k,) True for each object of `indices` whose target footprint keeps clear of every other
-    object as it stands in `state`: target_free(...).all() for all of them in one batched
-    check (REARRANGE asks it for every pending object at every step)."""
+                indices: np.ndarray) -> np.ndarray:
+    """(k, n) True where object j's current footprint keeps clear of the target footprint of
+    each object of `indices` (an object's entry for itself is True), in one batched check:
+    REARRANGE asks it for every pending object at every step."""
     n = problem.n
-    rows_a = np.repeat(indices, n - 1)
-    rows_b = np.array([j for i in indices for j in range(n) if j != i], int)
-    clear = footprints_clear(problem, rows_a, target[rows_a], rows_b, state[rows_b])
-    return clear.reshape(len(indices), n - 1).all(axis=1)
+    rows_a = np.repeat(indices, n)
+    rows_b = np.tile(np.arange(n), len(indices))
+    other = rows_a != rows_b
+    clear = np.ones(len(rows_a), bool)
+    clear[other] = footprints_clear(problem, rows_a[other], target[rows_a[other]],
+                                    rows_b[other], state[rows_b[other]])
+    return clear.reshape(len(indices), n)
 
 
 def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
@@ -211,7 +202,7 @@ def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
     """Objects in the way of `index` reaching its target: those standing on its target
     footprint, else those near the straight line from it to its target, closest first ("near":
     their bounding circles closer than BALL_ROOM, so they may block the pusher too)."""
-    on_target = np.nonzero(~target_free(problem, state, target, index))[0]
+    on_target = np.nonzero(~target_free(problem, state, target, np.array([index]))[0])[0]
     if len(on_target):
         return [int(j) for j in on_target]
     others = np.array([j for j in range(problem.n) if j != index], int)

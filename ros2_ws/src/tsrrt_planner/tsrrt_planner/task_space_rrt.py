@@ -54,7 +54,7 @@ from tsrrt_planner.rearrange import (
     frees_a_push,
     object_error,
     parking_poses,
-    targets_free,
+    target_free,
 )
 
 MODES = ("paper", "paper-nogd", "tsrrt", "greedy")
@@ -1017,8 +1017,8 @@ class _TsrrtSearch(_Search):
                 break
             state = self.tree.states[node]
             blocks = corridor_blocks(problem, state, arrangement, pending)
-            free = dict(zip(pending, targets_free(problem, state, arrangement,
-                                                  np.array(pending)), strict=True))
+            free = dict(zip(pending, target_free(problem, state, arrangement,
+                                                 np.array(pending)).all(axis=1), strict=True))
             order = sorted(pending, key=lambda i: (
                 bool(blocks[i, pending].any()), not free[i], error(i, state)))
             ready = [i for i in order if not blocks[i, pending].any()]
