@@ -28,8 +28,8 @@ from tsrrt_planner.rearrange import (
     object_error,
     object_path,
     parking_poses,
-    straight_sweeps,
     target_free,
+    ways_crossed,
 )
 from tsrrt_planner.task_space_rrt import (
     equivalent_targets,
@@ -272,12 +272,42 @@ def test_batched_target_and_sweep_checks_agree_with_one_object_at_a_time(problem
     np.testing.assert_array_equal(target_free(problem, state, target, indices), expected)
     assert expected[indices, indices].all()  # an object's own entry
     assert not expected[0, 1]   # plate_1's target is where plate_2 stands
-    sweeps = straight_sweeps(state, target, np.array([0, 2]))
-    assert sweeps.shape == (2, 8, 3)
-    for row, i in enumerate((0, 2)):
-        np.testing.assert_allclose(sweeps[row, 0], state[i])
-        np.testing.assert_allclose(sweeps[row, -1, :2], target[i, :2])
-        np.testing.assert_allclose(sweeps[row, :, 2], state[i, 2])   # at its current heading
+
+
+def test_ways_crossed_counts_what_pose_by_pose_checks_count(problem):
+    """ways_crossed (compiled, one pass) against footprints_clear on each pose of each way:
+    an object's way is its straight sweep to its target at its current heading."""
+    state = problem.start
+    target = state.copy()
+    target[0] = state[1]
+    target[2, :2] = state[2, :2] + 0.05
+    target[3, :2] = state[3, :2] - np.array([0.0, 0.2])
+    index, blocked, others = 4, 0, np.array([2, 3])
+    rng = np.random.default_rng(3)
+    poses = np.column_stack([rng.uniform(0.3, 0.6, 300), rng.uniform(-0.25, 0.25, 300),
+                             np.full(300, state[index, 2])])
+
+    def clear_of(j: int, pose: np.ndarray, with_target: bool) -> bool:
+        way = [state[j] + np.r_[f * (target[j, :2] - state[j, :2]), 0.0]
+               for f in np.linspace(0.0, 1.0, 8)]
+        return all(footprints_clear(problem, np.array([index]), pose[None], np.array([j]),
+                                    other[None])[0]
+                   for other in ([target[j]] if with_target else []) + way)
+
+    out_of_way, on_targets, crossed = ways_crossed(problem, state, target, index, poses,
+                                                   blocked, others)
+    for p, pose in enumerate(poses):
+        assert out_of_way[p] == clear_of(blocked, pose, True)
+        if out_of_way[p]:
+            assert on_targets[p] == sum(
+                not footprints_clear(problem, np.array([index]), pose[None], np.array([j]),
+                                     target[[j]])[0] for j in others)
+            assert crossed[p] == sum(not clear_of(j, pose, False) for j in others)
+        else:
+            assert on_targets[p] == crossed[p] == 0
+    assert 0 < out_of_way.sum() < len(poses) and crossed[out_of_way].any()
+    np.testing.assert_array_equal(clear_of_way(problem, state, target, index, poses, blocked),
+                                  out_of_way)
 
 
 def test_an_object_where_the_ball_must_be_is_named_with_the_push_it_blocks():

@@ -823,3 +823,67 @@ def _trace(parents: np.ndarray, kinds: np.ndarray, lengths: np.ndarray, node: in
         path_kinds[d], path_lengths[d] = kinds[node], lengths[node]
         node = parents[node]
     return path_kinds, path_lengths
+
+
+@kernel
+def ways_crossed(index: int, poses: np.ndarray, state: np.ndarray, target: np.ndarray,
+                 blocked: int, others: np.ndarray, fractions: np.ndarray, half: np.ndarray,
+                 is_disc: np.ndarray, margin: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How object `index` at each of `poses` (k, 3) stands towards the pending objects'
+    targets and ways (rearrange.parking_poses, clear_of_way), in one pass with early exits: a
+    way is the object's straight sweep from its pose in `state` to its `target` position at
+    its current heading, at `fractions` of the way.
+
+    Returns:
+        out_of_way (k,): clear of `blocked`'s target and way (only these are counted further);
+        on_targets (k,): how many of `others` (m,) have their target footprint within the
+            margin of it;
+        crossed (k,): how many of their ways it stands in.
+    """
+    k = len(poses)
+    out_of_way = np.zeros(k, np.bool_)
+    on_targets = np.zeros(k, np.int64)
+    crossed = np.zeros(k, np.int64)
+    hx, hy, disc = half[index, 0], half[index, 1], is_disc[index]
+    for p in range(k):
+        x, y = poses[p, 0], poses[p, 1]
+        c, s = math.cos(poses[p, 2]), math.sin(poses[p, 2])
+        if not _stays_clear(x, y, c, s, hx, hy, disc, blocked, state, target, fractions, half,
+                            is_disc, margin, True):
+            continue
+        out_of_way[p] = True
+        for j in others:
+            gap = _footprint_distance(x, y, c, s, hx, hy, disc, target[j, 0], target[j, 1],
+                                      math.cos(target[j, 2]), math.sin(target[j, 2]),
+                                      half[j, 0], half[j, 1], is_disc[j])
+            if not gap >= margin:
+                on_targets[p] += 1
+            if not _stays_clear(x, y, c, s, hx, hy, disc, j, state, target, fractions, half,
+                                is_disc, margin, False):
+                crossed[p] += 1
+    return out_of_way, on_targets, crossed
+
+
+@inline_kernel
+def _stays_clear(x: float, y: float, c: float, s: float, hx: float, hy: float, disc: bool,
+                 j: int, state: np.ndarray, target: np.ndarray, fractions: np.ndarray,
+                 half: np.ndarray, is_disc: np.ndarray, margin: float, with_target: bool
+                 ) -> bool:
+    """Whether a footprint (x, y, cos, sin; half sizes) keeps the margin from object j's way
+    (ways_crossed) and, `with_target`, from j's target footprint."""
+    jc, js = math.cos(state[j, 2]), math.sin(state[j, 2])
+    if with_target:
+        gap = _footprint_distance(x, y, c, s, hx, hy, disc, target[j, 0], target[j, 1],
+                                  math.cos(target[j, 2]), math.sin(target[j, 2]),
+                                  half[j, 0], half[j, 1], is_disc[j])
+        if not gap >= margin:
+            return False
+    dx, dy = target[j, 0] - state[j, 0], target[j, 1] - state[j, 1]
+    for f in fractions:
+        gap = _footprint_distance(x, y, c, s, hx, hy, disc, state[j, 0] + f * dx,
+                                  state[j, 1] + f * dy, jc, js, half[j, 0], half[j, 1],
+                                  is_disc[j])
+        if not gap >= margin:
+            return False
+    return True
