@@ -329,6 +329,39 @@ def test_an_object_where_the_ball_must_be_is_named_with_the_push_it_blocks():
     assert approach_blockers(problem, away, target, 0, 0.0) == ([], [])
 
 
+def test_pushes_without_each_object_agree_with_one_state_at_a_time():
+    """pushes_valid_without (one compiled pass) against pushes_valid on each state with one
+    object moved away, a refusal recorded in one of those states included."""
+    scenario = load_scenario("tset3")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    state = np.array([[0.45, 0.0, 0.0], [0.45, 0.11, 0.0], [0.57, 0.15, np.pi / 2]])
+    own = problem.action_primitives[problem.action_objects == 0]
+    primitives = np.tile(own, 3)
+    lengths = np.repeat([0.01, 0.05, 0.1], len(own))
+    objects = np.zeros(len(primitives), int)
+    removed = np.array([1, 2])
+
+    def one_at_a_time() -> np.ndarray:
+        rows = []
+        for j in removed:
+            without = state.copy()
+            without[j, :2] = OFF_THE_TABLE
+            rows.append(problem.pushes_valid(without, objects, primitives, lengths))
+        return np.array(rows)
+
+    expected = one_at_a_time()
+    assert not expected[1].all() and expected[0, primitives == 4].any()   # plate_2 blocks
+    np.testing.assert_array_equal(problem.pushes_valid_without(
+        state, removed, OFF_THE_TABLE, objects, primitives, lengths), expected)
+    without_plate_2 = state.copy()
+    without_plate_2[1, :2] = OFF_THE_TABLE
+    problem.refuse(0, 4, without_plate_2)
+    refused = one_at_a_time()
+    assert not refused[0, primitives == 4].any() and (refused[1] == expected[1]).all()
+    np.testing.assert_array_equal(problem.pushes_valid_without(
+        state, removed, OFF_THE_TABLE, objects, primitives, lengths), refused)
+
+
 def test_the_blocker_of_a_short_push_is_named_when_no_nominal_push_could_go():
     """tset6's platter_2, stranded in the blind spot 5 cm aside of its target and turned 3.5
     degrees, drifts back more than the face rule allows in a push of nominal length towards

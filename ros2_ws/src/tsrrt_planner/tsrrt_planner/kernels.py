@@ -624,6 +624,25 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.nda
 
 
 @kernel
+def pushes_valid_without(state: np.ndarray, removed: np.ndarray, away: np.ndarray,
+                         objects: np.ndarray, before: np.ndarray, change: np.ndarray,
+                         steps: np.ndarray, start: np.ndarray, end: np.ndarray, ok: np.ndarray,
+                         tables: tuple) -> np.ndarray:
+    """pushes_valid_compiled (r, k) with each object of `removed` (r,) in turn moved to `away`
+    (x, y), `ok` (r, k) as checked for each: what the pushes could do without that object
+    (rearrange.approach_blockers asks it of every object near the pushed one)."""
+    without = state.copy()
+    for r in range(len(removed)):
+        j = removed[r]
+        without[j, 0], without[j, 1] = away[0], away[1]
+        others, stranded = state_tables(without, tables)
+        _check_pushes(without, objects, before, change, steps, start, end, ok[r], tables,
+                      others, stranded)
+        without[j, 0], without[j, 1] = state[j, 0], state[j, 1]
+    return ok
+
+
+@kernel
 def state_tables(state: np.ndarray, tables: tuple) -> tuple[np.ndarray, np.ndarray]:
     """What pushes in `state` (n, 3) are checked against besides `tables`: its `neighbours`
     and, with the face rule, its stranded_objects. A search over one object's pose computes

@@ -62,6 +62,7 @@ from tsrrt_planner.kernels import (
     keeps_face_rule,
     points_reached,
     pushes_valid_compiled,
+    pushes_valid_without,
     refused_pushes,
     stranded_objects,
 )
@@ -359,6 +360,23 @@ class PlanningProblem:
             ok &= ~self._refused_here(state, objects, primitives, before)
         return pushes_valid_compiled(np.asarray(state, float), np.asarray(objects, np.int64),
                                      before, change, steps, start, end, ok, self.check_tables())
+
+    def pushes_valid_without(self, state: np.ndarray, removed: np.ndarray,
+                             away: tuple[float, float], objects: np.ndarray,
+                             primitives: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+        """(r, k) `pushes_valid` of pushes (k,) with each object of `removed` (r,), none of
+        them pushed, in turn moved to `away` (x, y), in one compiled pass."""
+        before = np.asarray(state[objects], float)
+        change, steps, start, end = self._geometry(before, objects, primitives, lengths)
+        ok = np.repeat((lengths <= self.max_lengths[objects] + 1e-9)[None], len(removed), 0)
+        for row, j in enumerate(removed):
+            if self.refused:
+                without = state.copy()
+                without[j, :2] = away
+                ok[row] &= ~self._refused_here(without, objects, primitives, before)
+        return pushes_valid_without(np.asarray(state, float), np.asarray(removed, np.int64),
+                                    np.asarray(away, float), np.asarray(objects, np.int64),
+                                    before, change, steps, start, end, ok, self.check_tables())
 
     def _geometry(self, before: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                   lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

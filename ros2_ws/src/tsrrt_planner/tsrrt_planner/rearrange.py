@@ -250,14 +250,13 @@ def approach_blockers(problem: PlanningProblem, state: np.ndarray, target: np.nd
     # these pushes; one taken off the table elsewhere can only make the face rule stricter
     radius = problem.checker.shapes.bounding_radius
     within = radius[index] + radius + float(lengths.max()) + 2 * BALL_ROOM
-    for j in np.nonzero(np.linalg.norm(state[:, :2] - state[index, :2], axis=1) < within)[0]:
-        if j == index:
-            continue
-        without = state.copy()
-        without[j, :2] = OFF_THE_TABLE
-        now_valid = problem.pushes_valid(without, objects, primitives, lengths) & ~valid
+    near = np.nonzero(np.linalg.norm(state[:, :2] - state[index, :2], axis=1) < within)[0]
+    near = near[near != index]
+    without = problem.pushes_valid_without(state, near, OFF_THE_TABLE, objects, primitives,
+                                           lengths)
+    for j, now_valid in zip(near.tolist(), without & ~valid, strict=True):
         if now_valid.any():
-            blockers.append(int(j))
+            blockers.append(j)
             freed |= now_valid
     return blockers, [(index, int(primitive), float(length))
                       for primitive, length in zip(primitives[freed], lengths[freed], strict=True)]
