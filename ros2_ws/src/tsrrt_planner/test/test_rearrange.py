@@ -11,10 +11,11 @@ from tsrrt_planner.bench import default_models
 from tsrrt_planner.kernels import expand_pushes, points_reached, pose_key, segments_reached
 from tsrrt_planner.lower_bound import lower_bound
 from tsrrt_planner.model_learning import ModelStore
-from tsrrt_planner.problem import REACH_SPACING, PlanningProblem
+from tsrrt_planner.problem import REACH_SPACING, PlanningProblem, shortest_turn
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.reachability import AnnulusReachability
 from tsrrt_planner.rearrange import (
+    CLEARANCE_SLACK,
     FIXED_LENGTHS,
     OFF_THE_TABLE,
     STEER_FRACTIONS,
@@ -456,6 +457,29 @@ def test_corridor_blocks_orders_an_object_out_of_anothers_way():
     blocks = corridor_blocks(problem, state, target, [0, 1, 2])
     assert blocks[0, 1] and not blocks.diagonal().any()
     assert not corridor_blocks(problem, state, target, [0, 2])[0, 1]
+
+
+def test_corridor_blocks_agree_with_pose_by_pose_checks():
+    """corridor_blocks (compiled, early exits) against footprints_clear on each pose of each
+    way, turning on the way, for random targets on tset6's table."""
+    scenario = load_scenario("tset6")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    state, rng = problem.start, np.random.default_rng(5)
+    target = state + np.column_stack([rng.normal(0.0, 0.15, (problem.n, 2)),
+                                      rng.uniform(-3.0, 3.0, problem.n)])
+    pending = [0, 2, 3, 4, 5]
+    blocks = corridor_blocks(problem, state, target, pending)
+    for i in range(problem.n):
+        for j in range(problem.n):
+            expected = False
+            if i != j and i in pending and j in pending:
+                turn = shortest_turn(target[j, 2] - state[j, 2], problem.angle_period[j])
+                expected = not all(footprints_clear(
+                    problem, np.array([i]), target[[i]], np.array([j]),
+                    (state[j] + f * np.r_[target[j, :2] - state[j, :2], turn])[None],
+                    slack=CLEARANCE_SLACK)[0] for f in np.linspace(0.0, 1.0, 8))
+            assert blocks[i, j] == expected, (i, j)
+    assert 0 < blocks.sum() < len(pending) * (len(pending) - 1)
 
 
 def test_corridors_turn_on_the_way():

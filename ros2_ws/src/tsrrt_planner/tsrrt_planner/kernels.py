@@ -906,3 +906,31 @@ def _stays_clear(x: float, y: float, c: float, s: float, hx: float, hy: float, d
         if not gap >= margin:
             return False
     return True
+
+
+@kernel
+def corridor_conflicts(pending: np.ndarray, state: np.ndarray, target: np.ndarray,
+                       change: np.ndarray, fractions: np.ndarray, half: np.ndarray,
+                       is_disc: np.ndarray, threshold: float) -> np.ndarray:
+    """rearrange.corridor_blocks in one compiled pass with early exits: (n, n) True at [i, j]
+    (both `pending`, i != j) when object i at its `target` comes closer than `threshold` to
+    object j at any pose state[j] + f * change[j] of its way, f in `fractions`."""
+    n = len(state)
+    blocks = np.zeros((n, n), np.bool_)
+    for i in pending:
+        x, y = target[i, 0], target[i, 1]
+        c, s = math.cos(target[i, 2]), math.sin(target[i, 2])
+        for j in pending:
+            if j == i:
+                continue
+            for f in fractions:
+                gap = _footprint_distance(
+                    x, y, c, s, half[i, 0], half[i, 1], is_disc[i],
+                    state[j, 0] + f * change[j, 0], state[j, 1] + f * change[j, 1],
+                    math.cos(state[j, 2] + f * change[j, 2]),
+                    math.sin(state[j, 2] + f * change[j, 2]), half[j, 0], half[j, 1],
+                    is_disc[j])
+                if not gap >= threshold:
+                    blocks[i, j] = True
+                    break
+    return blocks

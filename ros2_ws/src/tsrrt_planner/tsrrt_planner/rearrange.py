@@ -178,23 +178,14 @@ def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndar
     to be parked. Swept at its current heading instead, a long box that must turn a quarter
     to lie in a row would arrive across its neighbours' targets: clean's remote and the boxes
     beside it blocked each other, and the boxes were placed around the remote's slot."""
-    n = problem.n
-    blocks = np.zeros((n, n), bool)
-    pairs = [(i, j) for i in pending for j in pending if i != j]
-    if not pairs:
-        return blocks
-    rows_i, rows_j = (np.array(side) for side in zip(*pairs, strict=True))
-    fractions = sweep_fractions(samples)
-    k = len(pairs)
-    sweep = np.repeat(state[rows_j], samples, 0)  # (k * samples, 3)
-    change = target[rows_j] - state[rows_j]
-    change[:, 2] = shortest_turn(change[:, 2], problem.angle_period[rows_j])
-    sweep += np.tile(fractions, k)[:, None] * np.repeat(change, samples, 0)
-    clear = footprints_clear(problem, np.repeat(rows_i, samples), np.repeat(target[rows_i],
-                                                                            samples, 0),
-                             np.repeat(rows_j, samples), sweep, slack=CLEARANCE_SLACK)
-    blocks[rows_i, rows_j] = ~clear.reshape(k, samples).all(axis=1)
-    return blocks
+    change = target - state
+    change[:, 2] = shortest_turn(change[:, 2], problem.angle_period)
+    shapes = problem.checker.shapes
+    return kernels.corridor_conflicts(np.asarray(pending, np.int64),
+                                      np.ascontiguousarray(state, float),
+                                      np.ascontiguousarray(target, float), change,
+                                      sweep_fractions(samples), shapes.half, shapes.is_disc,
+                                      problem.checker.margin - CLEARANCE_SLACK)
 
 
 def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
