@@ -25,6 +25,9 @@ from tsrrt_planner.task_space_rrt import (
     MIN_STEER_GAIN,
     MODES,
     PAIR_COST_TOLERANCE,
+    SHORTCUT_NEAR,
+    SHORTCUT_SHARE,
+    SHORTCUT_SHARE_FAR,
     TASK_SPACE_RRT,
     GiveUpRule,
     PlannerConfig,
@@ -945,3 +948,21 @@ def test_a_plan_compiles_no_kernel_of_its_own():
                          text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == "{}", f"compiled during the plan: {run.stdout}"
+
+
+def test_the_search_keeps_the_shortening_share_only_near_the_best_target(problem):
+    """tsrrt leaves SHORTCUT_SHARE of a time budget for shortening only once its best node is
+    within SHORTCUT_NEAR of the best target; above that it searches until SHORTCUT_SHARE_FAR
+    is left."""
+    bound = lower_bound(problem, starts=2)
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    search = _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), 10.0, None, None, None,
+                          weights, target=bound.state)
+    near = bound.cost + 0.5 * SHORTCUT_NEAR * abs(bound.cost)
+    far = bound.cost + 2.0 * SHORTCUT_NEAR * abs(bound.cost)
+    limits = {}
+    for name, cost in (("near", near), ("far", far)):
+        search.best_cost = cost
+        limits[name] = search.search_time_limit()
+    assert limits == {"near": pytest.approx(10.0 * (1.0 - SHORTCUT_SHARE)),
+                      "far": pytest.approx(10.0 * (1.0 - SHORTCUT_SHARE_FAR))}
