@@ -845,10 +845,10 @@ def _trace(parents: np.ndarray, kinds: np.ndarray, lengths: np.ndarray, node: in
 
 
 @kernel
-def ways_crossed(index: int, poses: np.ndarray, state: np.ndarray, target: np.ndarray,
-                 blocked: int, others: np.ndarray, fractions: np.ndarray, half: np.ndarray,
-                 is_disc: np.ndarray, margin: float
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ways_crossed_compiled(index: int, poses: np.ndarray, state: np.ndarray,
+                          target: np.ndarray, blocked: int, others: np.ndarray,
+                          fractions: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                          margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How object `index` at each of `poses` (k, 3) stands towards the pending objects'
     targets and ways (rearrange.parking_poses, clear_of_way), in one pass with early exits: a
     way is the object's straight sweep from its pose in `state` to its `target` position at
@@ -890,7 +890,7 @@ def _stays_clear(x: float, y: float, c: float, s: float, hx: float, hy: float, d
                  half: np.ndarray, is_disc: np.ndarray, margin: float, with_target: bool
                  ) -> bool:
     """Whether a footprint (x, y, cos, sin; half sizes) keeps the margin from object j's way
-    (ways_crossed) and, `with_target`, from j's target footprint."""
+    (ways_crossed_compiled) and, `with_target`, from j's target footprint."""
     jc, js = math.cos(state[j, 2]), math.sin(state[j, 2])
     if with_target:
         gap = _footprint_distance(x, y, c, s, hx, hy, disc, target[j, 0], target[j, 1],

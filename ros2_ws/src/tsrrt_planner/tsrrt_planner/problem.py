@@ -369,8 +369,8 @@ class PlanningProblem:
         before = np.asarray(state[objects], float)
         change, steps, start, end = self._geometry(before, objects, primitives, lengths)
         ok = np.repeat((lengths <= self.max_lengths[objects] + 1e-9)[None], len(removed), 0)
-        for row, j in enumerate(removed):
-            if self.refused:
+        if self.refused:
+            for row, j in enumerate(removed):
                 without = state.copy()
                 without[j, :2] = away
                 ok[row] &= ~self._refused_here(without, objects, primitives, before)

@@ -31,7 +31,7 @@ from functools import cache
 
 import numpy as np
 
-from tsrrt_planner import kernels
+from tsrrt_planner.kernels import corridor_conflicts, search_object_path, ways_crossed_compiled
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 
 Push = tuple[int, int, float]  # (object index, primitive, push length)
@@ -84,7 +84,7 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
     tick()
     state = np.asarray(state, float)
     longest = float(problem.max_lengths[index])
-    kinds, lengths, reached = kernels.search_object_path(
+    kinds, lengths, reached = search_object_path(
         state, index, np.asarray(goal, float), weight, float(problem.angle_period[index]),
         tolerance, max_expansions, batch,
         problem.action_primitives[problem.action_objects == index], STEER_FRACTIONS,
@@ -128,10 +128,17 @@ class PathMemo:
 
 
 def compile_kernels(problem: PlanningProblem) -> None:
-    """Compile object_path's search (or load it from numba's cache) before a search's clock
-    starts."""
-    goal = problem.start[0] + np.array([0.01, 0.0, 0.0])
-    object_path(problem, problem.start, 0, goal, 1.0, lambda: None, max_expansions=1)
+    """Compile REARRANGE's kernels (or load them from numba's cache) before a search's clock
+    starts: object_path's search and the corridor, parking and blocker checks."""
+    start, goal = problem.start, problem.start.copy()
+    goal[0] += (0.01, 0.0, 0.0)
+    object_path(problem, start, 0, goal[0], 1.0, lambda: None, max_expansions=1)
+    corridor_blocks(problem, start, goal, list(range(problem.n)))
+    others = np.arange(1, problem.n)
+    ways_crossed(problem, start, goal, 0, start[:1], 0, others)
+    problem.pushes_valid_without(start, others, OFF_THE_TABLE, problem.action_objects[:1],
+                                 problem.action_primitives[:1],
+                                 np.full(1, problem.nominal_length))
 
 
 @cache
@@ -181,11 +188,10 @@ def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndar
     change = target - state
     change[:, 2] = shortest_turn(change[:, 2], problem.angle_period)
     shapes = problem.checker.shapes
-    return kernels.corridor_conflicts(np.asarray(pending, np.int64),
-                                      np.ascontiguousarray(state, float),
-                                      np.ascontiguousarray(target, float), change,
-                                      sweep_fractions(samples), shapes.half, shapes.is_disc,
-                                      problem.checker.margin - CLEARANCE_SLACK)
+    return corridor_conflicts(np.asarray(pending, np.int64), np.ascontiguousarray(state, float),
+                              np.ascontiguousarray(target, float), change,
+                              sweep_fractions(samples), shapes.half, shapes.is_disc,
+                              problem.checker.margin - CLEARANCE_SLACK)
 
 
 def blockers_of(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
@@ -279,14 +285,14 @@ def ways_crossed(problem: PlanningProblem, state: np.ndarray, target: np.ndarray
     """For object `index` at poses (k, 3): whether it is out of the `blocked` object's way
     (clear_of_way), and how many of `others` (m,) have their target within its margin and
     their straight way there (as for `blocked`) crossed by it; the counts only where it is
-    out of the way (kernels.ways_crossed, compiled: parking asked this of 200 poses at a
-    time, some 2000 times in a 3000-node tset12 search)."""
+    out of the way (ways_crossed_compiled: parking asked this of 200 poses at a time, some
+    2000 times in a 3000-node tset12 search)."""
     shapes = problem.checker.shapes
-    return kernels.ways_crossed(index, np.ascontiguousarray(poses, float),
-                                np.ascontiguousarray(state, float),
-                                np.ascontiguousarray(target, float), blocked,
-                                np.asarray(others, np.int64), sweep_fractions(8), shapes.half,
-                                shapes.is_disc, problem.checker.margin)
+    return ways_crossed_compiled(index, np.ascontiguousarray(poses, float),
+                                 np.ascontiguousarray(state, float),
+                                 np.ascontiguousarray(target, float), blocked,
+                                 np.asarray(others, np.int64), sweep_fractions(8), shapes.half,
+                                 shapes.is_disc, problem.checker.margin)
 
 
 def parking_poses(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
