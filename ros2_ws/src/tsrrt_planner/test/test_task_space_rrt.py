@@ -21,6 +21,7 @@ from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.rearrange import PathMemo, object_path
 from tsrrt_planner.task_space_rrt import (
+    FAR_FROM_TARGETS,
     GD_FAILURES_TOLERATED,
     MIN_STEER_GAIN,
     MODES,
@@ -952,17 +953,18 @@ def test_a_plan_compiles_no_kernel_of_its_own():
 
 def test_the_search_keeps_the_shortening_share_only_near_the_best_target(problem):
     """tsrrt leaves SHORTCUT_SHARE of a time budget for shortening only once its best node is
-    within SHORTCUT_NEAR of the best target; above that it searches until SHORTCUT_SHARE_FAR
-    is left."""
+    within SHORTCUT_NEAR of the best target (FAR_FROM_TARGETS when the plan's length counts);
+    above that it searches until SHORTCUT_SHARE_FAR is left."""
     bound = lower_bound(problem, starts=2)
     weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
-    search = _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), 10.0, None, None, None,
-                          weights, target=bound.state)
-    near = bound.cost + 0.5 * SHORTCUT_NEAR * abs(bound.cost)
-    far = bound.cost + 2.0 * SHORTCUT_NEAR * abs(bound.cost)
     limits = {}
-    for name, cost in (("near", near), ("far", far)):
-        search.best_cost = cost
-        limits[name] = search.search_time_limit()
-    assert limits == {"near": pytest.approx(10.0 * (1.0 - SHORTCUT_SHARE)),
-                      "far": pytest.approx(10.0 * (1.0 - SHORTCUT_SHARE_FAR))}
+    for push_cost in (0.0, 1e-3):
+        search = _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), 10.0, None, None, None,
+                              weights, push_cost=push_cost, target=bound.state)
+        for share in (0.5 * SHORTCUT_NEAR, 2.0 * SHORTCUT_NEAR, 2.0 * FAR_FROM_TARGETS):
+            search.best_cost = bound.cost + share * abs(bound.cost)
+            limits[push_cost, share] = search.search_time_limit() / 10.0
+    near, far = pytest.approx(1.0 - SHORTCUT_SHARE), pytest.approx(1.0 - SHORTCUT_SHARE_FAR)
+    assert limits == {(0.0, 0.5 * SHORTCUT_NEAR): near, (0.0, 2.0 * SHORTCUT_NEAR): far,
+                      (0.0, 2.0 * FAR_FROM_TARGETS): far, (1e-3, 0.5 * SHORTCUT_NEAR): near,
+                      (1e-3, 2.0 * SHORTCUT_NEAR): near, (1e-3, 2.0 * FAR_FROM_TARGETS): far}
