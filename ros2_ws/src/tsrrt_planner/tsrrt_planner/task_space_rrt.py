@@ -884,11 +884,11 @@ class _TsrrtSearch(_Search):
         """Whether the best node is more than FAR_FROM_TARGETS above the best target."""
         return not self.near_targets(self.best_cost)
 
-    def near_targets(self, cost: float) -> bool:
-        """Whether `cost` is within FAR_FROM_TARGETS of the best target (True while there is
-        no target)."""
+    def near_targets(self, cost: float, share: float = FAR_FROM_TARGETS) -> bool:
+        """Whether `cost` is within `share` of the best target (True while there is no
+        target)."""
         best_target = self.best_target_cost
-        return cost <= best_target + FAR_FROM_TARGETS * abs(best_target)
+        return cost <= best_target + share * abs(best_target)
 
     def search_time_limit(self) -> float:
         """The search stops at 1 - SHORTCUT_SHARE of the time budget, or at 1 -
@@ -902,10 +902,9 @@ class _TsrrtSearch(_Search):
         with SHORTCUT_NEAR there too, two fresh clean demos took 70 and 71 s with 35 and 42
         pushes, against 47 s and 22 pushes for the code before."""
         near = FAR_FROM_TARGETS if self.counts_pushes() else SHORTCUT_NEAR
-        best_target = self.best_target_cost
-        if self.best_cost > best_target + near * abs(best_target):
-            return self.far_search_limit_s
-        return self.time_budget_s
+        if self.near_targets(self.best_cost, near):
+            return self.time_budget_s
+        return self.far_search_limit_s
 
     def extend_towards_a_target(self) -> None:
         """One round with targets: from the best node or a random one, REARRANGE towards the
