@@ -868,8 +868,8 @@ def ways_crossed_compiled(index: int, poses: np.ndarray, state: np.ndarray,
     for p in range(k):
         x, y = poses[p, 0], poses[p, 1]
         c, s = math.cos(poses[p, 2]), math.sin(poses[p, 2])
-        if not _stays_clear(x, y, c, s, hx, hy, disc, blocked, state, target, fractions, half,
-                            is_disc, margin, True):
+        if not _stays_clear(x, y, c, s, hx, hy, disc, blocked, state, target, 0.0, fractions,
+                            half, is_disc, margin, True):
             continue
         out_of_way[p] = True
         for j in others:
@@ -878,59 +878,53 @@ def ways_crossed_compiled(index: int, poses: np.ndarray, state: np.ndarray,
                                       half[j, 0], half[j, 1], is_disc[j])
             if not gap >= margin:
                 on_targets[p] += 1
-            if not _stays_clear(x, y, c, s, hx, hy, disc, j, state, target, fractions, half,
-                                is_disc, margin, False):
+            if not _stays_clear(x, y, c, s, hx, hy, disc, j, state, target, 0.0, fractions,
+                                half, is_disc, margin, False):
                 crossed[p] += 1
     return out_of_way, on_targets, crossed
 
 
 @inline_kernel
 def _stays_clear(x: float, y: float, c: float, s: float, hx: float, hy: float, disc: bool,
-                 j: int, state: np.ndarray, target: np.ndarray, fractions: np.ndarray,
-                 half: np.ndarray, is_disc: np.ndarray, margin: float, with_target: bool
-                 ) -> bool:
-    """Whether a footprint (x, y, cos, sin; half sizes) keeps the margin from object j's way
-    (ways_crossed_compiled) and, `with_target`, from j's target footprint."""
+                 j: int, state: np.ndarray, target: np.ndarray, turn: float,
+                 fractions: np.ndarray, half: np.ndarray, is_disc: np.ndarray,
+                 threshold: float, with_target: bool) -> bool:
+    """Whether a footprint (x, y, cos, sin; half sizes) keeps `threshold` from object j's way
+    (straight from its pose in `state` to its `target` position, turning by `turn` on the way,
+    at `fractions` of it) and, `with_target`, from j's target footprint."""
     jc, js = math.cos(state[j, 2]), math.sin(state[j, 2])
     if with_target:
         gap = _footprint_distance(x, y, c, s, hx, hy, disc, target[j, 0], target[j, 1],
                                   math.cos(target[j, 2]), math.sin(target[j, 2]),
                                   half[j, 0], half[j, 1], is_disc[j])
-        if not gap >= margin:
+        if not gap >= threshold:
             return False
     dx, dy = target[j, 0] - state[j, 0], target[j, 1] - state[j, 1]
     for f in fractions:
+        if turn != 0.0:
+            jc, js = math.cos(state[j, 2] + f * turn), math.sin(state[j, 2] + f * turn)
         gap = _footprint_distance(x, y, c, s, hx, hy, disc, state[j, 0] + f * dx,
                                   state[j, 1] + f * dy, jc, js, half[j, 0], half[j, 1],
                                   is_disc[j])
-        if not gap >= margin:
+        if not gap >= threshold:
             return False
     return True
 
-
 @kernel
 def corridor_conflicts(pending: np.ndarray, state: np.ndarray, target: np.ndarray,
-                       change: np.ndarray, fractions: np.ndarray, half: np.ndarray,
+                       turns: np.ndarray, fractions: np.ndarray, half: np.ndarray,
                        is_disc: np.ndarray, threshold: float) -> np.ndarray:
     """rearrange.corridor_blocks in one compiled pass with early exits: (n, n) True at [i, j]
     (both `pending`, i != j) when object i at its `target` comes closer than `threshold` to
-    object j at any pose state[j] + f * change[j] of its way, f in `fractions`."""
+    object j anywhere on its way there, turning by turns[j] (_stays_clear)."""
     n = len(state)
     blocks = np.zeros((n, n), np.bool_)
     for i in pending:
         x, y = target[i, 0], target[i, 1]
         c, s = math.cos(target[i, 2]), math.sin(target[i, 2])
         for j in pending:
-            if j == i:
-                continue
-            for f in fractions:
-                gap = _footprint_distance(
-                    x, y, c, s, half[i, 0], half[i, 1], is_disc[i],
-                    state[j, 0] + f * change[j, 0], state[j, 1] + f * change[j, 1],
-                    math.cos(state[j, 2] + f * change[j, 2]),
-                    math.sin(state[j, 2] + f * change[j, 2]), half[j, 0], half[j, 1],
-                    is_disc[j])
-                if not gap >= threshold:
-                    blocks[i, j] = True
-                    break
+            if j != i and not _stays_clear(x, y, c, s, half[i, 0], half[i, 1], is_disc[i], j,
+                                           state, target, turns[j], fractions, half, is_disc,
+                                           threshold, False):
+                blocks[i, j] = True
     return blocks

@@ -185,11 +185,10 @@ def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndar
     to be parked. Swept at its current heading instead, a long box that must turn a quarter
     to lie in a row would arrive across its neighbours' targets: clean's remote and the boxes
     beside it blocked each other, and the boxes were placed around the remote's slot."""
-    change = target - state
-    change[:, 2] = shortest_turn(change[:, 2], problem.angle_period)
+    turns = shortest_turn(target[:, 2] - state[:, 2], problem.angle_period)
     shapes = problem.checker.shapes
     return corridor_conflicts(np.asarray(pending, np.int64), np.ascontiguousarray(state, float),
-                              np.ascontiguousarray(target, float), change,
+                              np.ascontiguousarray(target, float), turns,
                               sweep_fractions(samples), shapes.half, shapes.is_disc,
                               problem.checker.margin - CLEARANCE_SLACK)
 
