@@ -355,9 +355,7 @@ class PlanningProblem:
             return np.zeros(0, bool)
         before = np.asarray(state[objects] if poses is None else poses, float)
         change, steps, start, end = self._geometry(before, objects, primitives, lengths)
-        ok = lengths <= self.max_lengths[objects] + 1e-9
-        if self.refused:
-            ok &= ~self._refused_here(state, objects, primitives, before)
+        ok = self._allowed(state, objects, primitives, lengths, before)
         return pushes_valid_compiled(np.asarray(state, float), np.asarray(objects, np.int64),
                                      before, change, steps, start, end, ok, self.check_tables())
 
@@ -368,15 +366,23 @@ class PlanningProblem:
         them pushed, in turn moved to `away` (x, y), in one compiled pass."""
         before = np.asarray(state[objects], float)
         change, steps, start, end = self._geometry(before, objects, primitives, lengths)
-        ok = np.repeat((lengths <= self.max_lengths[objects] + 1e-9)[None], len(removed), 0)
-        if self.refused:
-            for row, j in enumerate(removed):
-                without = state.copy()
-                without[j, :2] = away
-                ok[row] &= ~self._refused_here(without, objects, primitives, before)
+        ok = np.empty((len(removed), len(objects)), bool)
+        for row, j in enumerate(removed):
+            without = state.copy()
+            without[j, :2] = away
+            ok[row] = self._allowed(without, objects, primitives, lengths, before)
         return pushes_valid_without(np.asarray(state, float), np.asarray(removed, np.int64),
                                     np.asarray(away, float), np.asarray(objects, np.int64),
                                     before, change, steps, start, end, ok, self.check_tables())
+
+    def _allowed(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                 lengths: np.ndarray, before: np.ndarray) -> np.ndarray:
+        """(k,) pushes no longer than their object may be pushed and not refused from `state`
+        (`refuse`): the push checks' rules that need no geometry."""
+        ok = lengths <= self.max_lengths[objects] + 1e-9
+        if self.refused:
+            ok &= ~self._refused_here(state, objects, primitives, before)
+        return ok
 
     def _geometry(self, before: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                   lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
