@@ -1,9 +1,9 @@
 """ROS 2 node: overhead camera (colour + depth + CameraInfo) -> object states and markers.
 
-Thin: image fields go through image_conversion, frames through segmentation and tracking; this
-module only pairs messages, reads parameters and fills messages. Colour and depth are paired by
-exact stamp (message_filters is not available from PyPI). Object states are republished at a fixed
-wall-clock rate even when frames come slower, with statuses aged accordingly.
+Thin: colour and depth frames are paired by frame_pairing, their fields go through
+image_conversion, the pairs through segmentation and tracking; this module only reads parameters
+and fills messages. Object states are republished at a fixed wall-clock rate even when frames
+come slower, with statuses aged accordingly.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from tsrrt_common.scenario import load_scenario
 from tsrrt_interfaces.msg import ObjectState, ObjectStateArray
 from tsrrt_interfaces.srv import GetSettledObjects
 from tsrrt_perception.camera_view import OVERHEAD_ORIENTATION_XYZW, CameraView
+from tsrrt_perception.frame_pairing import ExactStampPairer
 from tsrrt_perception.image_conversion import image_to_array
 from tsrrt_perception.segmentation import (
     SegmentationParams,
@@ -50,7 +51,7 @@ from tsrrt_perception.tracking import (
 )
 
 FRAME_ID = "world"
-PAIRING_BUFFER = 10              # unpaired images kept per stream while waiting for the other
+PAIRING_BUFFER = 10              # at most this many frames per stream wait for their partner
 SKIP_LOG_PERIOD_S = 5.0          # the same reason for skipping frames is logged this often
 STATUS_COLORS = {TrackStatus.TRACKED: (0.1, 0.9, 0.1), TrackStatus.OCCLUDED: (0.95, 0.8, 0.1),
                  TrackStatus.STALE: (0.95, 0.5, 0.1), TrackStatus.LOST: (0.9, 0.1, 0.1)}
@@ -118,8 +119,7 @@ class PerceptionNode(Node):
         self.camera: CameraView | None = None
         self.camera_problem: str | None = "no CameraInfo received yet"
         self._skip_logged: dict[str, float] = {}   # reason -> monotonic time it was logged
-        self.colour_by_stamp: dict[int, Image] = {}
-        self.depth_by_stamp: dict[int, Image] = {}
+        self.pairer: ExactStampPairer[Image] = ExactStampPairer(PAIRING_BUFFER)  # colour, depth
         self.settle_requests: list[_SettleRequest] = []
         # (stamp, estimates) of the latest frame that was settled at the default speeds.
         self.latest_settled: tuple[float, list[ObjectEstimate]] | None = None
@@ -215,26 +215,15 @@ class PerceptionNode(Node):
             self.camera, self.camera_problem = camera, None
 
     def _on_colour(self, msg: Image) -> None:
-        key = _stamp_key(msg.header.stamp)
-        depth = self.depth_by_stamp.pop(key, None)
-        if depth is None:
-            self._remember(self.colour_by_stamp, key, msg)
-        else:
-            self._process(msg, depth)
+        self._pair(0, msg)
 
     def _on_depth(self, msg: Image) -> None:
-        key = _stamp_key(msg.header.stamp)
-        colour = self.colour_by_stamp.pop(key, None)
-        if colour is None:
-            self._remember(self.depth_by_stamp, key, msg)
-        else:
-            self._process(colour, msg)
+        self._pair(1, msg)
 
-    @staticmethod
-    def _remember(buffer: dict[int, Image], key: int, msg: Image) -> None:
-        buffer[key] = msg
-        while len(buffer) > PAIRING_BUFFER:
-            del buffer[min(buffer)]
+    def _pair(self, stream: int, msg: Image) -> None:
+        pair = self.pairer.add(stream, _stamp_key(msg.header.stamp), msg)
+        if pair is not None:
+            self._process(*pair)
 
     def _skip(self, reason: str) -> None:
         """Log why a frame is skipped: each distinct reason at once, then at most every
