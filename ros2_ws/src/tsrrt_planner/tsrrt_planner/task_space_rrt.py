@@ -423,6 +423,8 @@ class _Search:
             steps = absorb_pushes(self.problem, self.shortcut(steps), first=1)
             finished = absorb_pushes(self.problem, steps + self.finishing_polish(steps),
                                      first=len(steps))
+            # what the finish folded into may let pushes of the plan fold as well
+            finished = absorb_pushes(self.problem, finished, first=1)
             # asked for a short plan, take the finish only where it is free
             if not self.counts_pushes() or len(finished) <= len(steps):
                 steps = finished
@@ -611,11 +613,16 @@ def absorb_pushes(problem: PlanningProblem, steps: list[Push], first: int) -> li
     finishing polish's 2-mm pushes mostly finish what such a push stopped short of (a plate
     aimed 2 mm inside its corner); appended, they made tset6 plans 5-10 pushes longer. So do
     POLISH's and REARRANGE's short pushes mid-plan (a shortened plan is folded from its
-    second push: tset6, 40 seeds of 4 s, 50 pushes against 54-58)."""
+    second push: tset6, 40 seeds of 4 s, 50 pushes against 54-58). Passes repeat until one
+    folds nothing: a fold changes the states after it and lowers the cost to match, which can
+    let a push an earlier pass kept fold too."""
     states = list(simulate(problem, steps))
     reference = float(problem.objective.cost(states[-1]))
-    k = first
-    while k < len(steps):
+    k, folded = first, False
+    while k < len(steps) or folded:
+        if k >= len(steps):
+            k, folded = first, False
+            continue
         o, p, length = steps[k]
         earlier = [j for j in range(k) if steps[j][:2] == (o, p)]
         if earlier and steps[earlier[-1]][2] + length <= problem.max_lengths[o] + 1e-12:
@@ -626,6 +633,7 @@ def absorb_pushes(problem: PlanningProblem, steps: list[Push], first: int) -> li
                     reference + 1e-12):
                 steps, states = steps[:j] + tail, states[:j] + replayed
                 reference = float(problem.objective.cost(states[-1]))
+                folded = True
                 continue
         k += 1
     return steps
