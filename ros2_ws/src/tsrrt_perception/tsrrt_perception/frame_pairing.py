@@ -54,7 +54,8 @@ class ExactStampPairer(Generic[Frame]):
             while len(own) > self.capacity:
                 del own[next(iter(own))]
             return None
-        _drop_older(own, stamp)
+        # nothing of `own` older than `stamp` waits: the other stream, at or past `stamp`,
+        # has passed it (the rule above)
         return (frame, partner) if stream == 0 else (partner, frame)
 
 

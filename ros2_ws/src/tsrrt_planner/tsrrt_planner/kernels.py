@@ -910,6 +910,7 @@ def _stays_clear(x: float, y: float, c: float, s: float, hx: float, hy: float, d
             return False
     return True
 
+
 @kernel
 def corridor_conflicts(pending: np.ndarray, state: np.ndarray, target: np.ndarray,
                        turns: np.ndarray, fractions: np.ndarray, half: np.ndarray,
