@@ -610,14 +610,20 @@ def keeps_face_rule(obj: int, before: np.ndarray, final: np.ndarray, stranded: n
 
 
 @kernel
-def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, before: np.ndarray,
-                          change: np.ndarray, steps: np.ndarray, start: np.ndarray,
-                          end: np.ndarray, ok: np.ndarray, tables: tuple) -> np.ndarray:
-    """`pushes_valid` in one compiled pass: each push still `ok` (k,) (length and refusals
-    checked) must keep its way clear (swept_pose_clear), keep the face rule if the problem has
-    one (keeps_face_rule), and keep the ball's path in reach and clear of the others.
-    `tables` are PlanningProblem.check_tables(). A numpy version spent about 60 us a call in
-    per-call overhead, most of a REARRANGE search's time."""
+def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                          lengths: np.ndarray, before: np.ndarray, ok: np.ndarray,
+                          geometry: tuple, tables: tuple) -> np.ndarray:
+    """`pushes_valid` in one compiled pass: each push (from poses `before`) still `ok` (k,)
+    (length and refusals checked) must keep its way clear (swept_pose_clear), keep the face
+    rule if the problem has one (keeps_face_rule), and keep the ball's path in reach and clear
+    of the others. `geometry` and `tables` are PlanningProblem.geometry_tables() and
+    check_tables(). A numpy version spent about 60 us a call in per-call overhead, most of a
+    REARRANGE search's time; with the geometry (batch_push_geometry) as a second call, a third
+    of the 30 us a call that remained."""
+    rates, contact, direction, half_length, max_substep, ball_radius, clearance, _, _ = geometry
+    change, steps, start, end = batch_push_geometry(
+        before, rates, contact, direction, objects, primitives, lengths, half_length,
+        max_substep, ball_radius, clearance)
     others, stranded = state_tables(state, tables)
     return _check_pushes(state, objects, before, change, steps, start, end, ok, tables, others,
                          stranded)

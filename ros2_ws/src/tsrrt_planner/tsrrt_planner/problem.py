@@ -206,6 +206,9 @@ class PlanningProblem:
                 f"{1000 * overhang:.1f} mm past a table edge)")
         self.action_objects, self.action_primitives = np.nonzero(self.available)
         self.action_primitives = self.action_primitives + 1
+        # each object's own primitives, asked for by every A* search (rearrange.object_path)
+        self.primitives_of = tuple(self.action_primitives[self.action_objects == i]
+                                   for i in range(self.n))
         self.nominal_length = DEFAULT_PUSH_LENGTH
         # longest push per object (longest_push) and over all of them
         self.max_lengths = np.array([longest_push(models, o) for o in scenario.objects])
@@ -354,10 +357,11 @@ class PlanningProblem:
         if len(objects) == 0:
             return np.zeros(0, bool)
         before = np.asarray(state[objects] if poses is None else poses, float)
-        change, steps, start, end = self._geometry(before, objects, primitives, lengths)
         ok = self._allowed(state, objects, primitives, lengths, before)
         return pushes_valid_compiled(np.asarray(state, float), np.asarray(objects, np.int64),
-                                     before, change, steps, start, end, ok, self.check_tables())
+                                     np.asarray(primitives, np.int64),
+                                     np.asarray(lengths, float), before, ok,
+                                     self.geometry_tables(), self.check_tables())
 
     def pushes_valid_without(self, state: np.ndarray, removed: np.ndarray,
                              away: tuple[float, float], objects: np.ndarray,
