@@ -47,6 +47,7 @@ from tsrrt_common.scenario import ObjectSpec, Scenario
 from tsrrt_executor.push_primitives import (
     APPROACH_CLEARANCE,
     DEFAULT_PUSH_LENGTH,
+    ROTATION_PRIMITIVES,
     ball_path_points,
     primitive_vector_in_object_frame,
     primitives_for,
@@ -209,6 +210,10 @@ class PlanningProblem:
         # each object's own primitives, asked for by every A* search (rearrange.object_path)
         self.primitives_of = tuple(self.action_primitives[self.action_objects == i]
                                    for i in range(self.n))
+        # ... and the actions (indices into action_objects) that turn it (lost_turn)
+        turning = np.isin(self.action_primitives, ROTATION_PRIMITIVES)
+        self.turns_of = tuple(np.nonzero(turning & (self.action_objects == i))[0]
+                              for i in range(self.n))
         self.nominal_length = DEFAULT_PUSH_LENGTH
         # longest push per object (longest_push) and over all of them
         self.max_lengths = np.array([longest_push(models, o) for o in scenario.objects])

@@ -38,7 +38,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from tsrrt_executor.push_primitives import ROTATION_PRIMITIVES
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.kernels import steer_candidates
 from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
@@ -54,6 +53,7 @@ from tsrrt_planner.rearrange import (
     frees_a_push,
     object_error,
     parking_poses,
+    pose_error,
     target_free,
 )
 
@@ -1019,8 +1019,7 @@ class _TsrrtSearch(_Search):
         arrangement, target = target.copy(), inset_from_edges(problem, target, TARGET_INSET)
 
         def error(i: int, state: np.ndarray) -> float:
-            return float(object_error(problem, i, state[i][None], target[i],
-                                      self.weights[i])[0])
+            return pose_error(problem, i, state[i], target[i], self.weights[i])
 
         state = self.tree.states[node]
         pending = [i for i in range(problem.n) if error(i, state) > REARRANGE_TOLERANCE]
@@ -1240,8 +1239,8 @@ def steer_object(problem: PlanningProblem, state: np.ndarray, target: np.ndarray
     pushes and the state they lead to. Shortcuts replace stretches of a plan with these."""
     pushes: list[Push] = []
     while len(pushes) < max_pushes:
-        if tolerance is not None and object_error(problem, index, state[index][None],
-                                                  target[index], weights[index])[0] < tolerance:
+        if tolerance is not None and pose_error(problem, index, state[index], target[index],
+                                                weights[index]) < tolerance:
             break
         push = steer_push(problem, state, target, weights, index)
         if push is None:
@@ -1344,9 +1343,8 @@ def lost_turn(problem: PlanningProblem, state: np.ndarray, index: int,
     """What box `index` loses by being unable to turn in `state`: the cost gain of its best
     turn (primitives 5-6, lengths from `grid`) when that turns it by STUCK_TURN of arc at its
     ends or more and no turn that lowers the cost is valid; else 0."""
-    turns = np.isin(problem.action_primitives, ROTATION_PRIMITIVES) & (
-        problem.action_objects == index)
-    if not turns.any():
+    turns = problem.turns_of[index]
+    if not len(turns):
         return 0.0
     objects, primitives, lengths, candidates, costs = line_search_pushes(
         problem, state, problem.action_objects[turns], problem.action_primitives[turns], grid)
