@@ -248,8 +248,9 @@ def approach_blockers(problem: PlanningProblem, state: np.ndarray, target: np.nd
     blocker was found, and 6 of 40 tset6 seeds (1500 nodes) ended 2.0-3.5 % above the bound
     with platter_2 aside."""
     nominal = min(problem.nominal_length, float(problem.max_lengths[index]))
-    tried = np.unique([nominal, min(FIXED_LENGTHS[0], nominal)])[::-1]   # one when they agree
-    own = problem.action_primitives[problem.action_objects == index]
+    shortest = min(FIXED_LENGTHS[0], nominal)
+    tried = np.array([nominal, shortest] if shortest < nominal else [nominal])
+    own = problem.primitives_of[index]
     primitives, lengths = np.tile(own, len(tried)), np.repeat(tried, len(own))
     objects = np.full(len(primitives), index)
     before = pose_error(problem, index, state[index], target[index], weight)

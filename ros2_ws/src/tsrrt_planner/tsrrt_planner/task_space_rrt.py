@@ -717,10 +717,9 @@ def simulate_from(problem: PlanningProblem, state: np.ndarray, steps: list[Push]
 def can_move(problem: PlanningProblem, state: np.ndarray, index: int) -> bool:
     """Whether object `index` has any valid push in `state` (the shortest, of every
     primitive): not wedged against neighbours or the table edge, nor in the arm's dead zone."""
-    mine = problem.action_objects == index
-    lengths = np.full(int(mine.sum()), problem.min_length)
-    return bool(problem.pushes_valid(state, problem.action_objects[mine],
-                                     problem.action_primitives[mine], lengths).any())
+    primitives = problem.primitives_of[index]
+    return bool(problem.pushes_valid(state, np.full(len(primitives), index), primitives,
+                                     np.full(len(primitives), problem.min_length)).any())
 
 
 class _PaperSearch(_Search):
