@@ -618,8 +618,8 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, primitives: np
     rule if the problem has one (keeps_face_rule), and keep the ball's path in reach and clear
     of the others. `geometry` and `tables` are PlanningProblem.geometry_tables() and
     check_tables(). A numpy version spent about 60 us a call in per-call overhead, most of a
-    REARRANGE search's time; with the geometry (batch_push_geometry) as a second call, a third
-    of the 30 us a call that remained."""
+    REARRANGE search's time; the push geometry (batch_push_geometry) is computed here, not in a
+    second compiled call: 12 us a call for a few pushes instead of 30."""
     rates, contact, direction, half_length, max_substep, ball_radius, clearance, _, _ = geometry
     change, steps, start, end = batch_push_geometry(
         before, rates, contact, direction, objects, primitives, lengths, half_length,
