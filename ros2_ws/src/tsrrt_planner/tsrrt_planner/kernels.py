@@ -610,6 +610,17 @@ def keeps_face_rule(obj: int, before: np.ndarray, final: np.ndarray, stranded: n
 
 
 @kernel
+def pushes_geometry(before: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                    lengths: np.ndarray, geometry: tuple
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """batch_push_geometry with its tables from `geometry`
+    (PlanningProblem.geometry_tables())."""
+    rates, contact, direction, half_length, max_substep, ball_radius, clearance, _, _ = geometry
+    return batch_push_geometry(before, rates, contact, direction, objects, primitives, lengths,
+                               half_length, max_substep, ball_radius, clearance)
+
+
+@kernel
 def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                           lengths: np.ndarray, before: np.ndarray, ok: np.ndarray,
                           geometry: tuple, tables: tuple) -> np.ndarray:
@@ -620,10 +631,7 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, primitives: np
     check_tables(). A numpy version spent about 60 us a call in per-call overhead, most of a
     REARRANGE search's time; the push geometry (batch_push_geometry) is computed here, not in a
     second compiled call: 12 us a call for a few pushes instead of 30."""
-    rates, contact, direction, half_length, max_substep, ball_radius, clearance, _, _ = geometry
-    change, steps, start, end = batch_push_geometry(
-        before, rates, contact, direction, objects, primitives, lengths, half_length,
-        max_substep, ball_radius, clearance)
+    change, steps, start, end = pushes_geometry(before, objects, primitives, lengths, geometry)
     others, stranded = state_tables(state, tables)
     return _check_pushes(state, objects, before, change, steps, start, end, ok, tables, others,
                          stranded)
@@ -631,12 +639,13 @@ def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, primitives: np
 
 @kernel
 def pushes_valid_without(state: np.ndarray, removed: np.ndarray, away: np.ndarray,
-                         objects: np.ndarray, before: np.ndarray, change: np.ndarray,
-                         steps: np.ndarray, start: np.ndarray, end: np.ndarray, ok: np.ndarray,
-                         tables: tuple) -> np.ndarray:
+                         objects: np.ndarray, primitives: np.ndarray, lengths: np.ndarray,
+                         before: np.ndarray, ok: np.ndarray, geometry: tuple, tables: tuple
+                         ) -> np.ndarray:
     """pushes_valid_compiled (r, k) with each object of `removed` (r,) in turn moved to `away`
     (x, y), `ok` (r, k) as checked for each: what the pushes could do without that object
     (rearrange.approach_blockers asks it of every object near the pushed one)."""
+    change, steps, start, end = pushes_geometry(before, objects, primitives, lengths, geometry)
     without = state.copy()
     for r in range(len(removed)):
         j = removed[r]

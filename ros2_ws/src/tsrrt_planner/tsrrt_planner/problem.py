@@ -58,7 +58,6 @@ from tsrrt_planner.collision import CollisionChecker
 from tsrrt_planner.errors import PlannerError
 from tsrrt_planner.kernels import (
     REFUSED_RADIUS,
-    batch_push_geometry,
     faces_reached,
     keeps_face_rule,
     points_reached,
@@ -374,7 +373,6 @@ class PlanningProblem:
         """(r, k) `pushes_valid` of pushes (k,) with each object of `removed` (r,), none of
         them pushed, in turn moved to `away` (x, y), in one compiled pass."""
         before = np.asarray(state[objects], float)
-        change, steps, start, end = self._geometry(before, objects, primitives, lengths)
         ok = np.empty((len(removed), len(objects)), bool)
         for row, j in enumerate(removed):
             without = state.copy()
@@ -382,7 +380,9 @@ class PlanningProblem:
             ok[row] = self._allowed(without, objects, primitives, lengths, before)
         return pushes_valid_without(np.asarray(state, float), np.asarray(removed, np.int64),
                                     np.asarray(away, float), np.asarray(objects, np.int64),
-                                    before, change, steps, start, end, ok, self.check_tables())
+                                    np.asarray(primitives, np.int64),
+                                    np.asarray(lengths, float), before, ok,
+                                    self.geometry_tables(), self.check_tables())
 
     def _allowed(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                  lengths: np.ndarray, before: np.ndarray) -> np.ndarray:
@@ -392,15 +392,6 @@ class PlanningProblem:
         if self.refused:
             ok &= ~self._refused_here(state, objects, primitives, before)
         return ok
-
-    def _geometry(self, before: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                  lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """batch_push_geometry for pushes of objects (k,) from poses `before` (k, 3)."""
-        return batch_push_geometry(np.asarray(before, float), self.rates, self.contact,
-                                   self.direction, np.asarray(objects, np.int64),
-                                   np.asarray(primitives, np.int64), np.asarray(lengths, float),
-                                   self.objects.half_length, self.max_substep, BALL_RADIUS,
-                                   APPROACH_CLEARANCE)
 
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start
