@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 
 from tsrrt_common.scenario import load_scenario
+from tsrrt_planner.objectives import compile_cost_kernels
 from tsrrt_planner.problem import PlanningProblem
 from tsrrt_planner.push_rule import learn_all
 from tsrrt_planner.task_space_rrt import compile_search_kernels
@@ -20,6 +21,7 @@ def main() -> None:
     scenario = load_scenario("obstacle")   # one with a static obstacle: every kernel's types
     problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
     compile_search_kernels(problem)
+    compile_cost_kernels()
     print(f"planner kernels ready in {time.perf_counter() - began:.1f} s")
 
 

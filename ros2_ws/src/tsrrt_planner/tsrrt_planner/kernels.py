@@ -13,7 +13,7 @@ reach tests; were they in other files, changing a test would leave the search ru
 one from the cache. For the same reason the constants the kernels use live here.
 
 Sections: footprint and ball-path collision tests; reach lookups on a grid; push geometry and the
-whole push check; REARRANGE's A* over one object's pose.
+whole push check; REARRANGE's A* over one object's pose; the objective's terms.
 """
 
 from __future__ import annotations
@@ -944,3 +944,129 @@ def corridor_conflicts(pending: np.ndarray, state: np.ndarray, target: np.ndarra
                                            threshold, False):
                 blocks[i, j] = True
     return blocks
+
+
+# ---------------- objective terms of one state (objectives.py)
+NUMPY_SUM_BLOCK = 128   # numpy's PW_BLOCKSIZE: the longest run it sums without splitting
+
+
+@inline_kernel
+def _numpy_block_sum(values: np.ndarray, start: int, count: int) -> float:
+    """numpy's pairwise_sum of values[start:start + count] for count <= NUMPY_SUM_BLOCK."""
+    if count < 8:
+        total = -0.0
+        for k in range(start, start + count):
+            total += values[k]
+        return total
+    r = values[start:start + 8].copy()
+    k = 8
+    while k < count - count % 8:
+        for a in range(8):
+            r[a] += values[start + k + a]
+        k += 8
+    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    for m in range(k, count):
+        total += values[start + m]
+    return total
+
+
+@kernel
+def _numpy_pairwise_sum(values: np.ndarray) -> float:
+    """values (1-d) summed in the order numpy's pairwise_sum adds them
+    (numpy/_core/src/umath/loops_utils.h.src): one by one below 8 values, in eight interleaved
+    accumulators up to NUMPY_SUM_BLOCK, and above that the sum of two halves (the first a
+    multiple of 8 long), each summed the same way. The halving runs on a stack, not by
+    recursion, which numba's cache does not take in a kernel that others call."""
+    if len(values) <= NUMPY_SUM_BLOCK:
+        return _numpy_block_sum(values, 0, len(values))
+    starts, counts = np.zeros(64, np.int64), np.zeros(64, np.int64)
+    halves_done = np.zeros(64, np.int64)   # 0: neither half summed, 1: the first, 2: both
+    sums = np.zeros(64)
+    counts[0] = len(values)
+    depth, summed = 1, 0
+    while depth:
+        top = depth - 1
+        half = counts[top] // 2
+        half -= half % 8
+        if counts[top] <= NUMPY_SUM_BLOCK:
+            sums[summed] = _numpy_block_sum(values, starts[top], counts[top])
+            summed += 1
+            depth -= 1
+        elif halves_done[top] < 2:
+            first = halves_done[top] == 0
+            starts[depth] = starts[top] if first else starts[top] + half
+            counts[depth] = half if first else counts[top] - half
+            halves_done[depth] = 0
+            halves_done[top] += 1
+            depth += 1
+        else:
+            sums[summed - 2] = sums[summed - 2] + sums[summed - 1]
+            summed -= 1
+            depth -= 1
+    return sums[0]
+
+
+@inline_kernel
+def _numpy_sum(values: np.ndarray) -> float:
+    """values.sum() of a 1-d array, bit for bit: numpy starts from the identity 0.0."""
+    return 0.0 + _numpy_pairwise_sum(values)
+
+
+@kernel
+def pair_distance_sums(states: np.ndarray, first: np.ndarray, second: np.ndarray
+                       ) -> np.ndarray:
+    """(k,) sum of the centre distances between objects first[p] and second[p] in each state
+    of states (k, n, 3)."""
+    costs, lengths = np.empty(len(states)), np.empty(len(first))
+    for s in range(len(states)):
+        for p in range(len(first)):
+            dx = states[s, first[p], 0] - states[s, second[p], 0]
+            dy = states[s, first[p], 1] - states[s, second[p], 1]
+            lengths[p] = math.sqrt(dx * dx + dy * dy)
+        costs[s] = _numpy_sum(lengths)
+    return costs
+
+
+@kernel
+def point_distance_sums(states: np.ndarray, indices: np.ndarray, point: np.ndarray
+                        ) -> np.ndarray:
+    """(k,) sum of the distances of the `indices` objects' centres to `point` in each state."""
+    costs, lengths = np.empty(len(states)), np.empty(len(indices))
+    for s in range(len(states)):
+        for p in range(len(indices)):
+            dx, dy = states[s, indices[p], 0] - point[0], states[s, indices[p], 1] - point[1]
+            lengths[p] = math.sqrt(dx * dx + dy * dy)
+        costs[s] = _numpy_sum(lengths)
+    return costs
+
+
+@inline_kernel
+def _right_angle_distance(theta: float) -> float:
+    """|objectives.right_angle_residual(theta)|, the same operations."""
+    return abs(theta - (math.pi / 2.0) * np.rint(theta / (math.pi / 2.0)))
+
+
+@kernel
+def right_angle_distance_sums(states: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """(k,) sum over the `indices` objects of their heading's distance to a multiple of pi/2,
+    in each state."""
+    costs, distances = np.empty(len(states)), np.empty(len(indices))
+    for s in range(len(states)):
+        for p in range(len(indices)):
+            distances[p] = _right_angle_distance(states[s, indices[p], 2])
+        costs[s] = _numpy_sum(distances)
+    return costs
+
+
+@kernel
+def heading_difference_sums(states: np.ndarray, first: np.ndarray, second: np.ndarray
+                            ) -> np.ndarray:
+    """(k,) sum over pairs of the distance of their heading difference to a multiple of pi/2,
+    in each state."""
+    costs, distances = np.empty(len(states)), np.empty(len(first))
+    for s in range(len(states)):
+        for p in range(len(first)):
+            distances[p] = _right_angle_distance(states[s, first[p], 2]
+                                                 - states[s, second[p], 2])
+        costs[s] = _numpy_sum(distances)
+    return costs

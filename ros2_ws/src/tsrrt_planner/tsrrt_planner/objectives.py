@@ -33,6 +33,13 @@ Interpretation choices (repeated in docs/planner.md):
   sum over pairs of boxes of the angular distance of theta_i - theta_j to the nearest multiple of
   pi/2, so all boxes share one heading modulo a right angle. Discs contribute 0.
 
+Costs of the terms without trigonometry are compiled (kernels.py), one loop over a batch of
+states: the planner scores single states and batches of hundreds tens of thousands of times a
+second, and numpy's per-call overhead and temporaries made that a seventh of a tset12 search.
+Each state's sum is added up in the order numpy sums a contiguous array (pairwise), so a state
+costs the same, to the last bit, alone or in a batch. The extent terms stay in numpy (its float64
+sin and cos may be its own SIMD code, which a kernel's would not match).
+
 Gradients are analytic; at the kinks listed above a subgradient (the 0 or one-sided value) is
 returned. Tests compare them with central finite differences away from kinks.
 """
@@ -48,6 +55,12 @@ import numpy as np
 
 from tsrrt_common.scenario import OBJECTIVE_TERM_PARAMS, ObjectiveTermSpec, ObjectSpec, Scenario
 from tsrrt_planner.errors import ObjectiveError
+from tsrrt_planner.kernels import (
+    heading_difference_sums,
+    pair_distance_sums,
+    point_distance_sums,
+    right_angle_distance_sums,
+)
 
 HALF_PI = math.pi / 2.0
 
@@ -57,9 +70,25 @@ def right_angle_residual(theta: np.ndarray) -> np.ndarray:
     return theta - HALF_PI * np.round(theta / HALF_PI)
 
 
+def each_state(kernel: Any, states: np.ndarray, *tables: Any) -> np.ndarray:
+    """A compiled term cost (k, n, 3) -> (k,) of states (..., n, 3), shaped (...,)."""
+    states = np.ascontiguousarray(states, dtype=float)
+    return kernel(states.reshape(-1, *states.shape[-2:]), *tables).reshape(states.shape[:-2])
+
+
+def compile_cost_kernels() -> None:
+    """Compile every compiled term's kernel (or load it from numba's cache), whichever terms
+    the first objective has (compile_kernels.py)."""
+    states, first, second = np.zeros((1, 2, 3)), np.zeros(1, np.int64), np.ones(1, np.int64)
+    pair_distance_sums(states, first, second)
+    point_distance_sums(states, first, np.zeros(2))
+    right_angle_distance_sums(states, first)
+    heading_difference_sums(states, first, second)
+
+
 def _lengths(vectors: np.ndarray, keepdims: bool = False) -> np.ndarray:
     """Euclidean lengths over the last axis: np.linalg.norm's values without its per-call
-    overhead (the cost is evaluated tens of thousands of times a second)."""
+    overhead (gradients are evaluated thousands of times a second)."""
     return np.sqrt((vectors * vectors).sum(axis=-1, keepdims=keepdims))
 
 
@@ -177,8 +206,7 @@ class _PairDistanceTerm(ObjectiveTerm):
     _no_pair_problem = "needs at least two objects"
 
     def cost(self, states: np.ndarray) -> np.ndarray:
-        delta = states[..., self.first, :2] - states[..., self.second, :2]
-        return self.sign * _lengths(delta).sum(axis=-1)
+        return self.sign * each_state(pair_distance_sums, states, self.first, self.second)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         delta = states[..., self.first, :2] - states[..., self.second, :2]  # (..., P, 2)
@@ -231,8 +259,7 @@ class DistanceToPointTerm(ObjectiveTerm):
             raise self.fail(f"point must be [x, y] or 'table_center', got {raw!r}")
 
     def cost(self, states: np.ndarray) -> np.ndarray:
-        delta = states[..., self.indices, :2] - self.point
-        return _lengths(delta).sum(axis=-1)
+        return each_state(point_distance_sums, states, self.indices, self.point)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         delta = states[..., self.indices, :2] - self.point
@@ -252,7 +279,7 @@ class OrthogonalityTerm(ObjectiveTerm):
         self.boxes = self.indices[~self.objects.is_disc[self.indices]]
 
     def cost(self, states: np.ndarray) -> np.ndarray:
-        return np.abs(right_angle_residual(states[..., self.boxes, 2])).sum(axis=-1)
+        return each_state(right_angle_distance_sums, states, self.boxes)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         grad = np.zeros_like(states)
@@ -275,8 +302,7 @@ class AlignTerm(ObjectiveTerm):
         self.incidence = _pair_matrix(len(self.objects), self.first, self.second)
 
     def cost(self, states: np.ndarray) -> np.ndarray:
-        difference = states[..., self.first, 2] - states[..., self.second, 2]
-        return np.abs(right_angle_residual(difference)).sum(axis=-1)
+        return each_state(heading_difference_sums, states, self.first, self.second)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         difference = states[..., self.first, 2] - states[..., self.second, 2]

@@ -233,9 +233,11 @@ class PlanningProblem:
         self._compile_kernels()
 
     def _compile_kernels(self) -> None:
-        """Compile the push checks' kernels (or load them from numba's cache) now, as the
-        collision checker does its own: on a fresh install they took 0.5 s of a first plan's
-        first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s more)."""
+        """Compile the push checks' and the objective's kernels (or load them from numba's
+        cache) now, as the collision checker does its own: on a fresh install they took 0.5 s of
+        a first plan's first second (and REARRANGE's, `rearrange.compile_kernels`, 0.7 s
+        more); loading the objective's from the cache takes 0.1-0.5 s."""
+        self.objective.cost(self.start)
         one, pose = np.zeros(1, np.int64), self.start[:1]
         self.pushes_valid(self.start, one, one + 1, np.full(1, self.min_length))
         self.reachable_faces(one, pose)
