@@ -958,19 +958,20 @@ def _numpy_block_sum(values: np.ndarray, start: int, count: int) -> float:
         for k in range(start, start + count):
             total += values[k]
         return total
-    r = values[start:start + 8].copy()
+    v = values[start:start + count]
+    r0, r1, r2, r3, r4, r5, r6, r7 = v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]
     k = 8
     while k < count - count % 8:
-        for a in range(8):
-            r[a] += values[start + k + a]
+        r0, r1, r2, r3 = r0 + v[k], r1 + v[k + 1], r2 + v[k + 2], r3 + v[k + 3]
+        r4, r5, r6, r7 = r4 + v[k + 4], r5 + v[k + 5], r6 + v[k + 6], r7 + v[k + 7]
         k += 8
-    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
     for m in range(k, count):
-        total += values[start + m]
+        total += v[m]
     return total
 
 
-@kernel
+@inline_kernel
 def _numpy_pairwise_sum(values: np.ndarray) -> float:
     """values (1-d) summed in the order numpy's pairwise_sum adds them
     (numpy/_core/src/umath/loops_utils.h.src): one by one below 8 values, in eight interleaved
@@ -1013,31 +1014,30 @@ def _numpy_sum(values: np.ndarray) -> float:
 
 
 @kernel
-def pair_distance_sums(states: np.ndarray, first: np.ndarray, second: np.ndarray
-                       ) -> np.ndarray:
-    """(k,) sum of the centre distances between objects first[p] and second[p] in each state
-    of states (k, n, 3)."""
-    costs, lengths = np.empty(len(states)), np.empty(len(first))
+def add_pair_distances(states: np.ndarray, first: np.ndarray, second: np.ndarray,
+                       weight: float, total: np.ndarray) -> None:
+    """total[s] += weight * the sum of the centre distances between objects first[p] and
+    second[p] in state s of states (k, n, 3)."""
+    lengths = np.empty(len(first))
     for s in range(len(states)):
         for p in range(len(first)):
             dx = states[s, first[p], 0] - states[s, second[p], 0]
             dy = states[s, first[p], 1] - states[s, second[p], 1]
             lengths[p] = math.sqrt(dx * dx + dy * dy)
-        costs[s] = _numpy_sum(lengths)
-    return costs
+        total[s] += weight * _numpy_sum(lengths)
 
 
 @kernel
-def point_distance_sums(states: np.ndarray, indices: np.ndarray, point: np.ndarray
-                        ) -> np.ndarray:
-    """(k,) sum of the distances of the `indices` objects' centres to `point` in each state."""
-    costs, lengths = np.empty(len(states)), np.empty(len(indices))
+def add_point_distances(states: np.ndarray, indices: np.ndarray, point: np.ndarray,
+                        weight: float, total: np.ndarray) -> None:
+    """total[s] += weight * the sum of the distances of the `indices` objects' centres to
+    `point` in state s."""
+    lengths = np.empty(len(indices))
     for s in range(len(states)):
         for p in range(len(indices)):
             dx, dy = states[s, indices[p], 0] - point[0], states[s, indices[p], 1] - point[1]
             lengths[p] = math.sqrt(dx * dx + dy * dy)
-        costs[s] = _numpy_sum(lengths)
-    return costs
+        total[s] += weight * _numpy_sum(lengths)
 
 
 @inline_kernel
@@ -1047,26 +1047,26 @@ def _right_angle_distance(theta: float) -> float:
 
 
 @kernel
-def right_angle_distance_sums(states: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """(k,) sum over the `indices` objects of their heading's distance to a multiple of pi/2,
-    in each state."""
-    costs, distances = np.empty(len(states)), np.empty(len(indices))
+def add_right_angle_distances(states: np.ndarray, indices: np.ndarray, weight: float,
+                              total: np.ndarray) -> None:
+    """total[s] += weight * the sum over the `indices` objects of their heading's distance to
+    a multiple of pi/2 in state s."""
+    distances = np.empty(len(indices))
     for s in range(len(states)):
         for p in range(len(indices)):
             distances[p] = _right_angle_distance(states[s, indices[p], 2])
-        costs[s] = _numpy_sum(distances)
-    return costs
+        total[s] += weight * _numpy_sum(distances)
 
 
 @kernel
-def heading_difference_sums(states: np.ndarray, first: np.ndarray, second: np.ndarray
-                            ) -> np.ndarray:
-    """(k,) sum over pairs of the distance of their heading difference to a multiple of pi/2,
-    in each state."""
-    costs, distances = np.empty(len(states)), np.empty(len(first))
+def add_heading_differences(states: np.ndarray, first: np.ndarray, second: np.ndarray,
+                            weight: float, total: np.ndarray) -> None:
+    """total[s] += weight * the sum over pairs of the distance of their heading difference to
+    a multiple of pi/2 in state s."""
+    distances = np.empty(len(first))
     for s in range(len(states)):
         for p in range(len(first)):
             distances[p] = _right_angle_distance(states[s, first[p], 2]
                                                  - states[s, second[p], 2])
-        costs[s] = _numpy_sum(distances)
-    return costs
+        total[s] += weight * _numpy_sum(distances)
+

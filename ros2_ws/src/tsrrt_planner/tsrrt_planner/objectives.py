@@ -56,10 +56,10 @@ import numpy as np
 from tsrrt_common.scenario import OBJECTIVE_TERM_PARAMS, ObjectiveTermSpec, ObjectSpec, Scenario
 from tsrrt_planner.errors import ObjectiveError
 from tsrrt_planner.kernels import (
-    heading_difference_sums,
-    pair_distance_sums,
-    point_distance_sums,
-    right_angle_distance_sums,
+    add_heading_differences,
+    add_pair_distances,
+    add_point_distances,
+    add_right_angle_distances,
 )
 
 HALF_PI = math.pi / 2.0
@@ -70,20 +70,15 @@ def right_angle_residual(theta: np.ndarray) -> np.ndarray:
     return theta - HALF_PI * np.round(theta / HALF_PI)
 
 
-def each_state(kernel: Any, states: np.ndarray, *tables: Any) -> np.ndarray:
-    """A compiled term cost (k, n, 3) -> (k,) of states (..., n, 3), shaped (...,)."""
-    states = np.ascontiguousarray(states, dtype=float)
-    return kernel(states.reshape(-1, *states.shape[-2:]), *tables).reshape(states.shape[:-2])
-
-
 def compile_cost_kernels() -> None:
     """Compile every compiled term's kernel (or load it from numba's cache), whichever terms
     the first objective has (compile_kernels.py)."""
     states, first, second = np.zeros((1, 2, 3)), np.zeros(1, np.int64), np.ones(1, np.int64)
-    pair_distance_sums(states, first, second)
-    point_distance_sums(states, first, np.zeros(2))
-    right_angle_distance_sums(states, first)
-    heading_difference_sums(states, first, second)
+    total = np.zeros(1)
+    add_pair_distances(states, first, second, 1.0, total)
+    add_point_distances(states, first, np.zeros(2), 1.0, total)
+    add_right_angle_distances(states, first, 1.0, total)
+    add_heading_differences(states, first, second, 1.0, total)
 
 
 def _lengths(vectors: np.ndarray, keepdims: bool = False) -> np.ndarray:
@@ -172,6 +167,16 @@ class ObjectiveTerm:
 
     def cost(self, states: np.ndarray) -> np.ndarray:
         """Unweighted cost (...,) of states (..., n, 3)."""
+        states = np.ascontiguousarray(states, dtype=float)
+        flat = states.reshape(-1, *states.shape[-2:])
+        total = np.zeros(len(flat))
+        self.add_weighted_cost(flat, 1.0, total)
+        return total.reshape(states.shape[:-2])
+
+    def add_weighted_cost(self, states: np.ndarray, weight: float, total: np.ndarray) -> None:
+        """total (k,) += weight * the costs of contiguous float states (k, n, 3), in place:
+        Objective.cost's sum, the value of `total + weight * cost` without numpy's
+        temporaries (a few us each)."""
         raise NotImplementedError
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
@@ -205,8 +210,9 @@ class _PairDistanceTerm(ObjectiveTerm):
 
     _no_pair_problem = "needs at least two objects"
 
-    def cost(self, states: np.ndarray) -> np.ndarray:
-        return self.sign * each_state(pair_distance_sums, states, self.first, self.second)
+    def add_weighted_cost(self, states: np.ndarray, weight: float, total: np.ndarray) -> None:
+        # weight * (sign * cost) == (sign * weight) * cost for sign +-1, bit for bit
+        add_pair_distances(states, self.first, self.second, self.sign * weight, total)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         delta = states[..., self.first, :2] - states[..., self.second, :2]  # (..., P, 2)
@@ -258,8 +264,8 @@ class DistanceToPointTerm(ObjectiveTerm):
         else:
             raise self.fail(f"point must be [x, y] or 'table_center', got {raw!r}")
 
-    def cost(self, states: np.ndarray) -> np.ndarray:
-        return each_state(point_distance_sums, states, self.indices, self.point)
+    def add_weighted_cost(self, states: np.ndarray, weight: float, total: np.ndarray) -> None:
+        add_point_distances(states, self.indices, self.point, weight, total)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         delta = states[..., self.indices, :2] - self.point
@@ -278,8 +284,8 @@ class OrthogonalityTerm(ObjectiveTerm):
     def _configure(self, params: dict[str, Any]) -> None:
         self.boxes = self.indices[~self.objects.is_disc[self.indices]]
 
-    def cost(self, states: np.ndarray) -> np.ndarray:
-        return each_state(right_angle_distance_sums, states, self.boxes)
+    def add_weighted_cost(self, states: np.ndarray, weight: float, total: np.ndarray) -> None:
+        add_right_angle_distances(states, self.boxes, weight, total)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         grad = np.zeros_like(states)
@@ -301,8 +307,8 @@ class AlignTerm(ObjectiveTerm):
         self.second = np.array([p[1] for p in pairs])
         self.incidence = _pair_matrix(len(self.objects), self.first, self.second)
 
-    def cost(self, states: np.ndarray) -> np.ndarray:
-        return each_state(heading_difference_sums, states, self.first, self.second)
+    def add_weighted_cost(self, states: np.ndarray, weight: float, total: np.ndarray) -> None:
+        add_heading_differences(states, self.first, self.second, weight, total)
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         difference = states[..., self.first, 2] - states[..., self.second, 2]
@@ -313,7 +319,11 @@ class AlignTerm(ObjectiveTerm):
 
 
 class _ExtentTerm(ObjectiveTerm):
-    """Shared helper: axis-aligned extents of the term's objects."""
+    """Shared helper: axis-aligned extents of the term's objects. Costs in numpy, of states
+    of any batch shape."""
+
+    def add_weighted_cost(self, states: np.ndarray, weight: float, total: np.ndarray) -> None:
+        total += weight * self.cost(states)
 
     def _extents(self, states: np.ndarray) -> tuple[np.ndarray, ...]:
         objects = self.objects
@@ -452,9 +462,12 @@ class Objective:
 
     def cost(self, states: np.ndarray) -> np.ndarray | float:
         """C of states (..., n, 3) -> (...,); a single state gives a float."""
-        states = np.asarray(states, dtype=float)
-        total = sum(term.weight * term.cost(states) for term in self.terms)
-        return float(total) if np.ndim(total) == 0 else total
+        states = np.ascontiguousarray(states, dtype=float)
+        flat = states.reshape(-1, *states.shape[-2:])
+        total = np.zeros(len(flat))
+        for term in self.terms:
+            term.add_weighted_cost(flat, term.weight, total)
+        return float(total[0]) if states.ndim == 2 else total.reshape(states.shape[:-2])
 
     def gradient(self, states: np.ndarray) -> np.ndarray:
         """dC/ds (..., n, 3) of states (..., n, 3)."""
