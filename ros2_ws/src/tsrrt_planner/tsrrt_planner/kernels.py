@@ -13,7 +13,8 @@ reach tests; were they in other files, changing a test would leave the search ru
 one from the cache. For the same reason the constants the kernels use live here.
 
 Sections: footprint and ball-path collision tests; reach lookups on a grid; push geometry and the
-whole push check; REARRANGE's A* over one object's pose; the objective's terms.
+whole push check; REARRANGE's A* over one object's pose; the objective's terms; matching
+interchangeable objects to target slots.
 """
 
 from __future__ import annotations
@@ -1070,3 +1071,82 @@ def add_heading_differences(states: np.ndarray, first: np.ndarray, second: np.nd
                                                  - states[s, second[p], 2])
         total[s] += weight * _numpy_sum(distances)
 
+
+# ---------------- matching interchangeable objects to target slots (task_space_rrt.py)
+@kernel
+def min_cost_assignment(cost: np.ndarray) -> np.ndarray:
+    """The column for each row of a square `cost` matrix that minimises the total: Crouse's
+    shortest augmenting paths (IEEE Trans. AES 52(4), 2016), with the conventions of scipy's
+    linear_sum_assignment (1.17) so that it picks the same one among equal totals and adds up in
+    the same order: columns scanned from the last, and among equally short paths the first
+    ending at a free column."""
+    size = len(cost)
+    u, v = np.zeros(size), np.zeros(size)
+    shortest = np.empty(size)
+    path = np.full(size, -1)
+    col4row, row4col = np.full(size, -1), np.full(size, -1)
+    rows_seen, columns_seen = np.zeros(size, np.bool_), np.zeros(size, np.bool_)
+    remaining = np.empty(size, np.int64)
+    for current in range(size):
+        for k in range(size):
+            remaining[k] = size - k - 1
+        rows_seen[:], columns_seen[:], shortest[:] = False, False, np.inf
+        left, row, sink, reached = size, current, -1, 0.0
+        while sink == -1:
+            index, lowest = -1, np.inf
+            rows_seen[row] = True
+            for k in range(left):
+                j = remaining[k]
+                r = reached + cost[row, j] - u[row] - v[j]
+                if r < shortest[j]:
+                    path[j], shortest[j] = row, r
+                if shortest[j] < lowest or (shortest[j] == lowest and row4col[j] == -1):
+                    lowest, index = shortest[j], k
+            reached = lowest
+            j = remaining[index]
+            if row4col[j] == -1:
+                sink = j
+            else:
+                row = row4col[j]
+            columns_seen[j] = True
+            left -= 1
+            remaining[index] = remaining[left]
+        u[current] += reached
+        for i in range(size):
+            if rows_seen[i] and i != current:
+                u[i] += reached - shortest[col4row[i]]
+        for j in range(size):
+            if columns_seen[j]:
+                v[j] -= reached - shortest[j]
+        j = sink
+        while True:
+            i = path[j]
+            row4col[j] = i
+            col4row[i], j = j, col4row[i]
+            if i == current:
+                break
+    return col4row
+
+
+@kernel
+def nearest_assignments(state: np.ndarray, targets: np.ndarray, members: np.ndarray,
+                        starts: np.ndarray) -> np.ndarray:
+    """task_space_rrt.assignment in one pass: (T, n) the slot of each of `targets` (T, n, 3)
+    each object takes, the objects of each group (members[starts[g]:starts[g + 1]]) matched to
+    their group's slots with the least total travel from `state` (n, 3)."""
+    orders = np.empty((len(targets), len(state)), np.int64)
+    for t in range(len(targets)):
+        for i in range(len(state)):
+            orders[t, i] = i
+        for g in range(len(starts) - 1):
+            group = members[starts[g]:starts[g + 1]]
+            distance = np.empty((len(group), len(group)))
+            for a in range(len(group)):
+                for b in range(len(group)):
+                    dx = state[group[a], 0] - targets[t, group[b], 0]
+                    dy = state[group[a], 1] - targets[t, group[b], 1]
+                    distance[a, b] = math.sqrt(dx * dx + dy * dy)
+            columns = min_cost_assignment(distance)
+            for a in range(len(group)):
+                orders[t, group[a]] = group[columns[a]]
+    return orders
