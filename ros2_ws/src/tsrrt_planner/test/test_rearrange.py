@@ -24,7 +24,6 @@ from tsrrt_planner.rearrange import (
     blockers_of,
     clear_of_way,
     corridor_blocks,
-    footprints_clear,
     frees_a_push,
     object_error,
     object_path,
@@ -51,6 +50,14 @@ def problem() -> PlanningProblem:
 
 def weights(problem: PlanningProblem) -> np.ndarray:
     return np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+
+
+def footprints_clear(problem: PlanningProblem, rows_a: np.ndarray, poses_a: np.ndarray,
+                     rows_b: np.ndarray, poses_b: np.ndarray, slack: float = 0.0) -> np.ndarray:
+    """(P,) True where object rows_a at poses_a (P, 3) keeps the margin (less `slack`) from
+    rows_b/poses_b: the collision checker's pair test, the reference for the compiled ones."""
+    gap = problem.checker.shapes.pair_signed_distance(rows_a, poses_a, rows_b, poses_b)
+    return gap >= problem.checker.margin - slack
 
 
 def test_default_reachability_is_the_executors_map(problem):

@@ -176,6 +176,21 @@ def pair_distances(rows_a: np.ndarray, poses_a: np.ndarray, rows_b: np.ndarray,
 
 
 @kernel
+def targets_clear(indices: np.ndarray, target: np.ndarray, state: np.ndarray,
+                  half: np.ndarray, is_disc: np.ndarray, threshold: float) -> np.ndarray:
+    """(k, n) True where object j at its pose in `state` is at least `threshold` from object
+    indices[r] at its pose in `target` (pair_distances' test); True for an object and itself."""
+    clear = np.ones((len(indices), len(state)), np.bool_)
+    for r in range(len(indices)):
+        i = indices[r]
+        for j in range(len(state)):
+            if j != i:
+                clear[r, j] = footprint_signed_distance(
+                    target[i], half[i], is_disc[i], state[j], half[j], is_disc[j]) >= threshold
+    return clear
+
+
+@kernel
 def neighbours(parent: np.ndarray, obstacle_poses: np.ndarray) -> np.ndarray:
     """(n + m, 4) x, y and the cosine and sine of the heading of every object of `parent`
     (n, 3), then of every obstacle: the footprint rows the pose and ball-path tests go through,

@@ -32,7 +32,12 @@ from functools import cache
 
 import numpy as np
 
-from tsrrt_planner.kernels import corridor_conflicts, search_object_path, ways_crossed_compiled
+from tsrrt_planner.kernels import (
+    corridor_conflicts,
+    search_object_path,
+    targets_clear,
+    ways_crossed_compiled,
+)
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 
 Push = tuple[int, int, float]  # (object index, primitive, push length)
@@ -170,30 +175,15 @@ def sweep_fractions(samples: int) -> np.ndarray:
     return fractions
 
 
-def footprints_clear(problem: PlanningProblem, rows_a: np.ndarray, poses_a: np.ndarray,
-                     rows_b: np.ndarray, poses_b: np.ndarray, slack: float = 0.0) -> np.ndarray:
-    """(P,) True where object rows_a at poses_a (P, 3) keeps the margin (less `slack`) from
-    rows_b/poses_b."""
-    if len(rows_a) == 0:
-        return np.ones(0, bool)
-    shapes = problem.checker.shapes
-    gap = shapes.pair_signed_distance(rows_a, poses_a, rows_b, poses_b)
-    return gap >= problem.checker.margin - slack
-
-
 def target_free(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
                 indices: np.ndarray) -> np.ndarray:
     """(k, n) True where object j's current footprint keeps clear of the target footprint of
-    each object of `indices` (an object's entry for itself is True), in one batched check:
-    REARRANGE asks it for every pending object at every step."""
-    n = problem.n
-    rows_a = np.repeat(indices, n)
-    rows_b = np.tile(np.arange(n), len(indices))
-    other = rows_a != rows_b
-    clear = np.ones(len(rows_a), bool)
-    clear[other] = footprints_clear(problem, rows_a[other], target[rows_a[other]],
-                                    rows_b[other], state[rows_b[other]])
-    return clear.reshape(len(indices), n)
+    each object of `indices` (an object's entry for itself is True), in one compiled pass
+    (kernels.targets_clear): REARRANGE asks it for every pending object at every step."""
+    shapes = problem.checker.shapes
+    return targets_clear(np.asarray(indices, np.int64), np.ascontiguousarray(target, float),
+                         np.ascontiguousarray(state, float), shapes.half, shapes.is_disc,
+                         problem.checker.margin)
 
 
 def corridor_blocks(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,

@@ -1030,9 +1030,10 @@ class _TsrrtSearch(_Search):
             blocks = corridor_blocks(problem, state, arrangement, pending)
             free = dict(zip(pending, target_free(problem, state, arrangement,
                                                  np.array(pending)).all(axis=1), strict=True))
-            order = sorted(pending, key=lambda i: (
-                bool(blocks[i, pending].any()), not free[i], error(i, state)))
-            ready = [i for i in order if not blocks[i, pending].any()]
+            waits = dict(zip(pending, blocks[np.ix_(pending, pending)].any(axis=1).tolist(),
+                             strict=True))
+            order = sorted(pending, key=lambda i: (waits[i], not free[i], error(i, state)))
+            ready = [i for i in order if not waits[i]]
             swaps = len(swapped)
             swap = None if self.far_from_targets() else functools.partial(
                 self.swap_targets, target=target, arrangement=arrangement, order=ready,
