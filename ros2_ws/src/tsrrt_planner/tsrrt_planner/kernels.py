@@ -636,17 +636,30 @@ def pushes_geometry(before: np.ndarray, objects: np.ndarray, primitives: np.ndar
                                half_length, max_substep, ball_radius, clearance)
 
 
+@inline_kernel
+def _no_longer_than_allowed(objects: np.ndarray, lengths: np.ndarray, geometry: tuple,
+                            ok: np.ndarray) -> None:
+    """ok[i] = False for the pushes longer than their object may be pushed (the longest push
+    per object, geometry_tables()), in place."""
+    max_lengths = geometry[7]
+    for i in range(len(objects)):
+        if not lengths[i] <= max_lengths[objects[i]] + 1e-9:
+            ok[i] = False
+
+
 @kernel
 def pushes_valid_compiled(state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
                           lengths: np.ndarray, before: np.ndarray, ok: np.ndarray,
                           geometry: tuple, tables: tuple) -> np.ndarray:
     """`pushes_valid` in one compiled pass: each push (from poses `before`) still `ok` (k,)
-    (length and refusals checked) must keep its way clear (swept_pose_clear), keep the face
-    rule if the problem has one (keeps_face_rule), and keep the ball's path in reach and clear
-    of the others. `geometry` and `tables` are PlanningProblem.geometry_tables() and
-    check_tables(). A numpy version spent about 60 us a call in per-call overhead, most of a
-    REARRANGE search's time; the push geometry (batch_push_geometry) is computed here, not in a
-    second compiled call: 12 us a call for a few pushes instead of 30."""
+    (refusals checked; updated in place) must be no longer than its object may be pushed, keep
+    its way clear (swept_pose_clear), keep the face rule if the problem has one
+    (keeps_face_rule), and keep the ball's path in reach and clear of the others. `geometry`
+    and `tables` are PlanningProblem.geometry_tables() and check_tables(). A numpy version
+    spent about 60 us a call in per-call overhead, most of a REARRANGE search's time; the push
+    geometry (batch_push_geometry) is computed here, not in a second compiled call: 12 us a
+    call for a few pushes instead of 30."""
+    _no_longer_than_allowed(objects, lengths, geometry, ok)
     change, steps, start, end = pushes_geometry(before, objects, primitives, lengths, geometry)
     others, stranded = state_tables(state, tables)
     return _check_pushes(state, objects, before, change, steps, start, end, ok, tables, others,
@@ -661,6 +674,8 @@ def pushes_valid_without(state: np.ndarray, removed: np.ndarray, away: np.ndarra
     """pushes_valid_compiled (r, k) with each object of `removed` (r,) in turn moved to `away`
     (x, y), `ok` (r, k) as checked for each: what the pushes could do without that object
     (rearrange.approach_blockers asks it of every object near the pushed one)."""
+    for r in range(len(removed)):
+        _no_longer_than_allowed(objects, lengths, geometry, ok[r])
     change, steps, start, end = pushes_geometry(before, objects, primitives, lengths, geometry)
     without = state.copy()
     for r in range(len(removed)):

@@ -75,6 +75,8 @@ MAX_PLANNED_PUSH = 0.10  # longest push the planner uses; the linear model is fi
 # slip across the push and of the turn) may be pushed up to MAX_PLANNED_PUSH (longest_push).
 CONSISTENT_SIDE_STD = 0.003       # m, the executor's consistency target
 CONSISTENT_TURN_STD = math.radians(3.0)
+NO_REFUSALS = np.zeros((0, 4))   # refusals_for's answer while nothing was refused
+NO_REFUSALS.flags.writeable = False
 REACH_SPACING = 0.005  # metres between checked ball positions, as push_is_executable samples
 # Metres an object short of a face may move against the push of its unreachable face (model
 # drift of a sideways push: about 1 mm in 3 cm): further, only that face could undo the move.
@@ -289,6 +291,8 @@ class PlanningProblem:
         """(m, 4) primitive and pose (x, y, theta) of object `index` for each of its refused
         pushes (`refuse`) that stand for `state` (n, 3): refused with every other object
         within REFUSED_RADIUS of where it is now."""
+        if not self.refused:
+            return NO_REFUSALS
         others = np.arange(self.n) != index
         rows = [[primitive, *where[index]] for obj, primitive, where in self.refused
                 if obj == index and np.abs(state[others, :2] - where[others, :2]).max(
@@ -363,7 +367,7 @@ class PlanningProblem:
         if len(objects) == 0:
             return np.zeros(0, bool)
         before = np.asarray(state[objects] if poses is None else poses, float)
-        ok = self._allowed(state, objects, primitives, lengths, before)
+        ok = self._not_refused(state, objects, primitives, before)
         return pushes_valid_compiled(np.asarray(state, float), np.asarray(objects, np.int64),
                                      np.asarray(primitives, np.int64),
                                      np.asarray(lengths, float), before, ok,
@@ -379,21 +383,20 @@ class PlanningProblem:
         for row, j in enumerate(removed):
             without = state.copy()
             without[j, :2] = away
-            ok[row] = self._allowed(without, objects, primitives, lengths, before)
+            ok[row] = self._not_refused(without, objects, primitives, before)
         return pushes_valid_without(np.asarray(state, float), np.asarray(removed, np.int64),
                                     np.asarray(away, float), np.asarray(objects, np.int64),
                                     np.asarray(primitives, np.int64),
                                     np.asarray(lengths, float), before, ok,
                                     self.geometry_tables(), self.check_tables())
 
-    def _allowed(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
-                 lengths: np.ndarray, before: np.ndarray) -> np.ndarray:
-        """(k,) pushes no longer than their object may be pushed and not refused from `state`
-        (`refuse`): the push checks' rules that need no geometry."""
-        ok = lengths <= self.max_lengths[objects] + 1e-9
+    def _not_refused(self, state: np.ndarray, objects: np.ndarray, primitives: np.ndarray,
+                     before: np.ndarray) -> np.ndarray:
+        """(k,) pushes not refused from `state` (`refuse`), the rule the compiled checks take
+        as given; they check the lengths themselves."""
         if self.refused:
-            ok &= ~self._refused_here(state, objects, primitives, before)
-        return ok
+            return ~self._refused_here(state, objects, primitives, before)
+        return np.ones(len(objects), bool)
 
     def reachable_faces(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """(k,) how many translation primitives (1-4) of each object at `poses` (k, 3) start

@@ -1327,13 +1327,15 @@ def line_search_pushes(problem: PlanningProblem, state: np.ndarray, objects: np.
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Each (object, primitive) push (k,) at every length of `grid` (g,), from `state`: the
     pushes' objects, primitives and lengths (k * g,), the states they predict (k * g, n, 3) and
-    those states' costs, not yet checked for validity."""
+    those states' costs, not yet checked for validity. `predict`'s arithmetic, with each push's
+    direction turned to the world once, not once per length."""
     g = len(grid)
+    directions = np.repeat(problem.push_directions(state, objects, primitives), g, axis=0)
     objects, primitives = np.repeat(objects, g), np.repeat(primitives, g)
     lengths = np.tile(grid, len(objects) // g)
     candidates = np.repeat(state[None], len(objects), axis=0)
-    candidates[np.arange(len(objects)), objects] = problem.predict(state, objects, primitives,
-                                                                   lengths)
+    candidates[np.arange(len(objects)), objects] = (state[objects]
+                                                    + lengths[:, None] * directions)
     return objects, primitives, lengths, candidates, problem.objective.cost(candidates)
 
 
