@@ -977,7 +977,7 @@ def corridor_conflicts(pending: np.ndarray, state: np.ndarray, target: np.ndarra
     return blocks
 
 
-# ---------------- objective terms of one state (objectives.py)
+# ---------------- objective terms (objectives.py)
 NUMPY_SUM_BLOCK = 128   # numpy's PW_BLOCKSIZE: the longest run it sums without splitting
 
 

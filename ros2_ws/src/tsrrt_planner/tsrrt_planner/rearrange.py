@@ -145,11 +145,12 @@ class PathMemo:
 
 def compile_kernels(problem: PlanningProblem) -> None:
     """Compile REARRANGE's kernels (or load them from numba's cache) before a search's clock
-    starts: object_path's search and the corridor, parking and blocker checks."""
+    starts: object_path's search and the corridor, target, parking and blocker checks."""
     start, goal = problem.start, problem.start.copy()
     goal[0] += (0.01, 0.0, 0.0)
     object_path(problem, start, 0, goal[0], 1.0, lambda: None, max_expansions=1)
     corridor_blocks(problem, start, goal, list(range(problem.n)))
+    target_free(problem, start, goal, np.arange(problem.n))
     others = np.arange(1, problem.n)
     ways_crossed(problem, start, goal, 0, start[:1], 0, others)
     problem.pushes_valid_without(start, others, OFF_THE_TABLE, problem.action_objects[:1],

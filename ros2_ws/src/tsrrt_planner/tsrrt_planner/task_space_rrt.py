@@ -1250,11 +1250,12 @@ def steer_object(problem: PlanningProblem, state: np.ndarray, target: np.ndarray
 
 
 def compile_search_kernels(problem: PlanningProblem) -> None:
-    """Compile (or load from numba's cache) the kernels of REARRANGE's A* and of STEER, so
-    that neither takes a first search's time; scripts/setup.sh runs it after each build
-    (compile_kernels.py)."""
+    """Compile (or load from numba's cache) the kernels of REARRANGE's A*, of STEER and of
+    choose_target's matching, so that none takes a first search's time; scripts/setup.sh runs
+    it after each build (compile_kernels.py)."""
     compile_kernels(problem)
     steer_push(problem, problem.start, problem.start, np.ones(problem.n))
+    assignment([np.arange(min(2, problem.n))], problem.start[None], problem.start)
 
 
 def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
