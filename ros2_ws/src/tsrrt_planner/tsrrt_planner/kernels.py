@@ -810,8 +810,7 @@ def search_object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: 
     Returns:
         the path's primitives and lengths, and whether it reached the goal.
     """
-    rates, contact, direction, half_length, max_substep, ball_radius, clearance, \
-        max_lengths, shortest = geometry
+    rates, max_lengths, shortest = geometry[0], geometry[7], geometry[8]
     longest = max_lengths[index]
     per_pose = len(primitives) * (len(fractions) + len(detours))
     capacity = 1 + max_expansions * per_pose
@@ -848,12 +847,12 @@ def search_object_path(state: np.ndarray, index: int, goal: np.ndarray, weight: 
         if len(tried) == 0:
             continue
         objects = np.full(len(tried), index)
+        tried_kinds, tried_lengths = kind[tried], length[tried]
         before = expanded[rows[tried]]
-        change, steps, start, end = batch_push_geometry(
-            before, rates, contact, direction, objects, kind[tried], length[tried],
-            half_length, max_substep, ball_radius, clearance)
-        ok = ((length[tried] <= longest + 1e-9)
-              & ~refused_pushes(kind[tried], before, refusals, period))
+        ok = ~refused_pushes(tried_kinds, before, refusals, period)
+        _no_longer_than_allowed(objects, tried_lengths, geometry, ok)
+        change, steps, start, end = pushes_geometry(before, objects, tried_kinds, tried_lengths,
+                                                    geometry)
         valid = tried[_check_pushes(state, objects, before, change, steps, start, end, ok,
                                     checks, others, stranded)]
         for k in valid[np.argsort(error[valid], kind="mergesort")]:
