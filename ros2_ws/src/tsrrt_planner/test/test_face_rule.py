@@ -3,11 +3,15 @@ robot's base, where the arm cannot get behind them, beyond what the target itsel
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 
+from tsrrt_common.geometry import Pose2D
 from tsrrt_common.scenario import load_scenario
-from tsrrt_planner.bench import default_models
+from tsrrt_planner.bench import default_models, resolve_scenario
 from tsrrt_planner.lower_bound import lower_bound
 from tsrrt_planner.model_learning import ModelStore
 from tsrrt_planner.problem import PlanningProblem
@@ -82,6 +86,55 @@ def test_an_object_that_starts_stranded_may_stay_so_but_not_go_further_in(clean)
     further_in = (np.array([remote]), np.array([TOWARDS_BASE]), np.array([0.02]))
     assert not strict.pushes_valid(start, *further_in)[0]
     assert clean.pushes_valid(start, *further_in)[0]   # without the rule
+
+
+def test_without_the_retreat_limit_a_stranded_object_may_go_further_in_but_none_is_stranded(
+        clean):
+    """What the plan's finishing polish checks its pushes on: the retreat limit keeps an
+    object where the search's later pushes can reach it, and the plan's end has none; the
+    allowance still holds, since a replan after a divergent execution has those pushes."""
+    remote = clean.objects.ids.index("remote")
+    strict = clean.with_face_allowance([with_remote_at(clean, FREE)],
+                                       interchangeable_groups(clean))
+    finishing = strict.with_retreat_limit(math.inf)
+    further_in = (np.array([remote]), np.array([TOWARDS_BASE]), np.array([0.02]))
+    assert finishing.pushes_valid(with_remote_at(clean, STRANDED), *further_in)[0]
+    assert not strict.pushes_valid(with_remote_at(clean, STRANDED), *further_in)[0]
+    strands = (np.array([remote]), np.array([TOWARDS_BASE]), np.array([0.06]))
+    assert not finishing.pushes_valid(with_remote_at(clean, FREE), *strands)[0]
+
+
+# tset12's optimum (lower_bound) but for the platters' and erasers' exact places; in the far
+# corner at -y plate_6 stands where the arm reaches neither face that could push it back
+TSET12_NEAR_OPTIMUM = {
+    "plate_1": (0.33, 0.35, 0.0), "plate_2": (0.565, 0.35, 0.0), "plate_3": (0.435, -0.35, 0.0),
+    "plate_4": (0.33, -0.35, 0.0), "plate_5": (0.67, 0.35, 0.0), "plate_6": (0.67, -0.35, 0.0),
+    "platter_1": (0.36, 0.0, math.pi / 2), "platter_2": (0.50, 0.0, 0.0),
+    "platter_3": (0.50, -0.11, 0.0), "platter_4": (0.50, 0.11, 0.0),
+    "eraser_1": (0.61, 0.20, math.pi / 2), "eraser_2": (0.50, 0.22, 0.0)}
+
+
+def test_the_finishing_polish_puts_a_plate_into_the_far_corner_it_stops_short_of():
+    """REARRANGE aims 2 mm inside the table's edges (TARGET_INSET) and POLISH is to close
+    the gap, but 2 mm short of a far corner a plate is already stranded, and the shortest
+    push (2 mm) moves it further than the retreat limit lets it: tset12's plans left their
+    plates there, 0.15 % of the bound's cost each."""
+    scenario = resolve_scenario("tset12")
+    models = ModelStore.load(default_models(scenario))
+    goal = dataclasses.replace(scenario, objects=tuple(
+        dataclasses.replace(o, pose=Pose2D(*TSET12_NEAR_OPTIMUM[o.id]))
+        for o in scenario.objects))
+    target = PlanningProblem(goal, models).start
+    plate = scenario.objects.index(scenario.object("plate_6"))
+    problem = PlanningProblem(dataclasses.replace(goal, objects=tuple(
+        dataclasses.replace(o, pose=Pose2D(0.668, -0.348, 0.0)) if i == plate else o
+        for i, o in enumerate(goal.objects))), models)
+    assert problem.short_of_faces(problem.start)[plate]
+
+    result = TASK_SPACE_RRT(problem, "tsrrt", 0, time_budget_s=None, max_nodes=1,
+                            target=target)
+
+    assert np.abs(result.states[-1][plate, :2] - target[plate, :2]).max() < 0.0005
 
 
 def test_tset6_optimum_strands_nothing():

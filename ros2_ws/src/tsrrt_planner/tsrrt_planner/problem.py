@@ -230,6 +230,7 @@ class PlanningProblem:
         self.face_group = np.arange(self.n)
         self.face_allowance: np.ndarray | None = None
         self.face_tables = self._face_tables()
+        self.retreat_limit = STRANDED_RETREAT
         # (object index, primitive, state) of pushes the robot refused before moving
         self.refused: list[tuple[int, int, np.ndarray]] = []
         self._compile_kernels()
@@ -269,6 +270,13 @@ class PlanningProblem:
                               for row in stranded])
         variant.face_allowance = per_group.min(axis=0)
         variant.face_tables = variant._face_tables()
+        return variant
+
+    def with_retreat_limit(self, limit: float) -> PlanningProblem:
+        """A copy whose face rule lets an object short of a face move up to `limit` metres
+        against the push of a face the arm cannot reach (STRANDED_RETREAT: 1 mm)."""
+        variant = copy.copy(self)
+        variant.retreat_limit = float(limit)
         return variant
 
     def _face_tables(self) -> tuple[np.ndarray, ...]:
@@ -321,10 +329,10 @@ class PlanningProblem:
     def check_tables(self) -> tuple:
         """Everything pushes_valid_compiled checks a push against but the state: the collision
         checker's arrays, the ball's clearance, the reach grid and its sampling, whether the
-        face rule applies, its tables and STRANDED_RETREAT."""
+        face rule applies, its tables and the retreat limit (STRANDED_RETREAT)."""
         return (self.checker.pose_tables(), BALL_RADIUS + self.checker.ball_margin,
                 self.reach_cells, REACH_SPACING, self.face_allowance is not None,
-                self.face_tables, STRANDED_RETREAT)
+                self.face_tables, self.retreat_limit)
 
     # ------------------------------------------------------------------ forward model
     def push_directions(self, state: np.ndarray, objects: np.ndarray,
