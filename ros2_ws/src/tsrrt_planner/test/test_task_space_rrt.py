@@ -46,8 +46,10 @@ from tsrrt_planner.task_space_rrt import (
     heading_steps,
     interchangeable_groups,
     lost_turn,
+    merge_runs,
     polish_push,
     replay_from,
+    shorten_runs,
     simulate,
     steer_push,
     track_plan,
@@ -815,6 +817,23 @@ def test_a_finishing_push_is_folded_into_the_earlier_push_it_completes(problem):
     turning = [(platter, 1, 0.03), (plate, 3, 0.02), (platter, 1, 0.002)]
     assert problem.rates[platter, 0, 2] != 0.0
     assert absorb_pushes(problem, turning, first=2) == turning
+
+
+def test_shortening_stops_when_the_result_is_due(problem):
+    """Folding, merging and shortening runs replay the plan from each change, about the square
+    of its length: after a 10-s budget they took a 787-push tset12 plan to 18 s. Told to stop,
+    each returns the plan as it stands."""
+    plate, other = 0, 1
+    folds = [(plate, 3, 0.03), (other, 3, 0.02), (plate, 3, 0.002)]
+    merges = [(plate, 3, 0.01), (plate, 3, 0.01), (other, 3, 0.02)]
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    runs = [(plate, 3, 0.01)] * 4
+    assert absorb_pushes(problem, folds, first=2) != folds
+    assert merge_runs(problem, merges) != merges
+    assert shorten_runs(problem, runs, weights, np.inf) != runs
+    assert absorb_pushes(problem, folds, first=2, stop=lambda: True) == folds
+    assert merge_runs(problem, merges, stop=lambda: True) == merges
+    assert shorten_runs(problem, runs, weights, np.inf, stop=lambda: True) == runs
 
 
 def test_no_push_of_a_plan_folds_into_an_earlier_one(tset6):

@@ -96,6 +96,7 @@ PAIR_LONGEST_SPAN = 40  # pushes: the longest stretch of a plan one random short
 PAIR_PUSHES_PER_OBJECT = 4  # steering pushes one object may take in a random shortcut
 PAIR_TOLERANCE = 0.002  # metres (weighted rho) at which a random shortcut counts an object there
 PAIR_COST_TOLERANCE = 1e-3  # relative cost random shortcuts may give up together
+FOLD_SHARE = 0.3  # of the time left when random shortcuts begin, kept for folding pushes
 TRACK_FRACTIONS = (1.0, 0.9, 0.75, 0.5)  # of a re-aimed push length, tried when it is blocked
 TRACK_REPAIR_PUSHES = 2  # steering pushes that may bring an object back onto its planned pose
 TRACK_REPAIR_TOLERANCE = 0.001  # metres (weighted rho) at which such a repair stops
@@ -320,6 +321,12 @@ class _Search:
         """Seconds into the time budget at which the search stops (the rest shortens)."""
         return self.time_budget_s
 
+    def past_deadline(self) -> bool:
+        """Whether the result is due: the time budget is over or the caller cancelled. The
+        shortening after the search stops here, whatever it has left to fold."""
+        return ((self.cancelled is not None and self.cancelled())
+                or (self.deadline_s is not None and self.elapsed() >= self.deadline_s))
+
     def stalled(self, rule: StallRule) -> bool:
         now = self.elapsed()
         if self.best_cost <= rule.ceiling:
@@ -420,11 +427,12 @@ class _Search:
         steps = [(int(a[0]), int(a[1]), float(a[2])) for a in actions]
         if self.mode == "tsrrt":
             # each push folded into an earlier one it finishes, as the finishing pushes are
-            steps = absorb_pushes(self.problem, self.shortcut(steps), first=1)
+            stop = self.past_deadline
+            steps = absorb_pushes(self.problem, self.shortcut(steps), first=1, stop=stop)
             finished = absorb_pushes(self.finishing_problem, steps + self.finishing_polish(steps),
-                                     first=len(steps))
+                                     first=len(steps), stop=stop)
             # what the finish folded into may let pushes of the plan fold as well
-            finished = absorb_pushes(self.finishing_problem, finished, first=1)
+            finished = absorb_pushes(self.finishing_problem, finished, first=1, stop=stop)
             # asked for a short plan, take the finish only where it is free
             if not self.counts_pushes() or len(finished) <= len(steps):
                 steps = finished
@@ -504,6 +512,8 @@ class _Search:
                 final_cost = float(problem.objective.cost(states[-1]))
                 allowed = final_cost + SHORTCUT_TOLERANCE * max(abs(final_cost), 1e-12)
         for k in sorted({0, len(steps) // 4, len(steps) // 2}):
+            if self.past_deadline():
+                break
             state, replacement = states[k], []
             while len(replacement) < len(steps) - k:
                 push = steer_push(problem, state, states[-1], self.weights)
@@ -517,8 +527,10 @@ class _Search:
                     and float(problem.objective.cost(state)) <= allowed):
                 steps = steps[:k] + replacement
                 break
-        steps = merge_runs(problem, shorten_runs(problem, steps, self.weights, allowed))
-        return merge_runs(problem, self.shortcut_pairs(steps))
+        stop = self.past_deadline
+        steps = merge_runs(problem, shorten_runs(problem, steps, self.weights, allowed, stop),
+                           stop)
+        return merge_runs(problem, self.shortcut_pairs(steps), stop)
 
     def shortcut_pairs(self, steps: list[Push]) -> list[Push]:
         """Random shortcutting, as for RRT paths: pick two states i < j of the plan and steer
@@ -529,16 +541,19 @@ class _Search:
         path zigzags through the detours of every extension it was grown by. Stretches of
         3 to PAIR_LONGEST_SPAN pushes, their lengths drawn log-uniform: of the shortcuts that
         worked on tset6, 77 of 79 replaced fewer than 32 pushes, and a uniform draw spent
-        most attempts on longer ones. Up to PAIR_ATTEMPTS_PER_PUSH attempts per push, until the
-        time budget ends or the caller cancels."""
+        most attempts on longer ones. Up to PAIR_ATTEMPTS_PER_PUSH attempts per push, until
+        FOLD_SHARE of the time left is all that is left (absorb_pushes folds in it: with none
+        left, a tset12 plan kept 455 pushes where folding had made 372) or the caller cancels."""
         problem = self.problem
         rng = np.random.default_rng(self.seed)
+        until = None if self.deadline_s is None else (
+            self.deadline_s - FOLD_SHARE * max(self.deadline_s - self.elapsed(), 0.0))
         states = list(simulate(problem, steps))
         final_cost = float(problem.objective.cost(states[-1]))
         allowed = final_cost + PAIR_COST_TOLERANCE * max(abs(final_cost), 1e-12)
         for _ in range(PAIR_ATTEMPTS_PER_PUSH * len(steps)):
-            if len(steps) < 3 or (self.cancelled is not None and self.cancelled()) or (
-                    self.deadline_s is not None and self.elapsed() >= self.deadline_s):
+            if len(steps) < 3 or self.past_deadline() or (
+                    until is not None and self.elapsed() >= until):
                 break
             i = int(rng.integers(0, len(steps) - 2))
             longest = min(len(steps) - i, PAIR_LONGEST_SPAN)
@@ -566,14 +581,15 @@ class _Search:
 
 
 def shorten_runs(problem: PlanningProblem, steps: list[Push], weights: np.ndarray,
-                 allowed: float) -> list[Push]:
+                 allowed: float, stop: Callable[[], bool] = lambda: False) -> list[Push]:
     """Replace each run of three or more consecutive pushes on one object by fewer pushes
     steered (closed form, that object only) from the run's first state to its last pose, when
     the whole plan then replays validly and ends at cost <= `allowed`. REARRANGE's searched
-    paths hug obstacles in short steps that a few long pushes often replace."""
+    paths hug obstacles in short steps that a few long pushes often replace. Stops when `stop`
+    says so (the plan as shortened so far)."""
     states = list(simulate(problem, steps))
     k = 0
-    while k < len(steps):
+    while k < len(steps) and not stop():
         end = k
         while end < len(steps) and steps[end][0] == steps[k][0]:
             end += 1
@@ -593,13 +609,15 @@ def shorten_runs(problem: PlanningProblem, steps: list[Push], weights: np.ndarra
     return steps
 
 
-def merge_runs(problem: PlanningProblem, steps: list[Push]) -> list[Push]:
+def merge_runs(problem: PlanningProblem, steps: list[Push],
+               stop: Callable[[], bool] = lambda: False) -> list[Push]:
     """Merge consecutive pushes of the same primitive on the same object when the merged plan
-    is valid and ends no worse (only the plan from the merge on is re-checked)."""
+    is valid and ends no worse (only the plan from the merge on is re-checked), until `stop`
+    says so."""
     states = list(simulate(problem, steps))
     reference = float(problem.objective.cost(states[-1]))
     k = 0
-    while k < len(steps) - 1:
+    while k < len(steps) - 1 and not stop():
         (o1, p1, l1), (o2, p2, l2) = steps[k], steps[k + 1]
         if (o1, p1) == (o2, p2) and l1 + l2 <= problem.max_lengths[o1]:
             tail = [(o1, p1, l1 + l2)] + steps[k + 2:]
@@ -614,7 +632,8 @@ def merge_runs(problem: PlanningProblem, steps: list[Push]) -> list[Push]:
     return steps
 
 
-def absorb_pushes(problem: PlanningProblem, steps: list[Push], first: int) -> list[Push]:
+def absorb_pushes(problem: PlanningProblem, steps: list[Push], first: int,
+                  stop: Callable[[], bool] = lambda: False) -> list[Push]:
     """Fold each push from `first` on into the latest earlier push of the same object and
     primitive, lengthened by as much, when the plan stays valid and ends no worse. The
     finishing polish's 2-mm pushes mostly finish what such a push stopped short of (a plate
@@ -622,11 +641,15 @@ def absorb_pushes(problem: PlanningProblem, steps: list[Push], first: int) -> li
     POLISH's and REARRANGE's short pushes mid-plan (a shortened plan is folded from its
     second push: tset6, 40 seeds of 4 s, 50 pushes against 54-58). Passes repeat until one
     folds nothing: a fold changes the states after it and lowers the cost to match, which can
-    let a push an earlier pass kept fold too."""
+    let a push an earlier pass kept fold too.
+
+    Each fold replays the plan from the push it folds into, so a pass costs about the square of
+    the plan's length: a 787-push tset12 plan took 7.6 s of folding after a 10-s budget. It
+    stops when `stop` says so, with the pushes folded by then."""
     states = list(simulate(problem, steps))
     reference = float(problem.objective.cost(states[-1]))
     k, folded = first, False
-    while k < len(steps) or folded:
+    while (k < len(steps) or folded) and not stop():
         if k >= len(steps):
             k, folded = first, False
             continue
