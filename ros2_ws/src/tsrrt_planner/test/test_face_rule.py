@@ -88,7 +88,7 @@ def test_an_object_that_starts_stranded_may_stay_so_but_not_go_further_in(clean)
     assert clean.pushes_valid(start, *further_in)[0]   # without the rule
 
 
-def test_without_the_retreat_limit_a_stranded_object_may_go_further_in_but_none_is_stranded(
+def test_without_the_retreat_limit_a_stranded_object_may_go_further_in_but_no_free_one_in(
         clean):
     """What the plan's finishing polish checks its pushes on: the retreat limit keeps an
     object where the search's later pushes can reach it, and the plan's end has none; the

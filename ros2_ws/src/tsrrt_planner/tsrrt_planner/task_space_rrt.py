@@ -853,7 +853,7 @@ class _TsrrtSearch(_Search):
                 [kept.state for kept in self.targets], self.groups)
             # the retreat limit keeps a stranded object where the search's later pushes can
             # still reach it; the plan's end has none, and a plate 2 mm short of a far corner
-            # (TARGET_INSET), where the arm reaches neither face that could pull it back,
+            # (TARGET_INSET), where the arm reaches neither face that could push it back,
             # could not be finished there (`finishing_polish`)
             self.finishing_problem = self.problem.with_retreat_limit(math.inf)
         self.paths = PathMemo(self.problem)   # REARRANGE's A* searches, asked again and again
