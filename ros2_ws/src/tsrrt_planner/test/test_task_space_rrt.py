@@ -28,6 +28,8 @@ from tsrrt_planner.task_space_rrt import (
     MIN_STEER_GAIN,
     MODES,
     PAIR_COST_TOLERANCE,
+    RESTART_AT,
+    RESTART_FAR,
     SHORTCUT_NEAR,
     SHORTCUT_SHARE,
     SHORTCUT_SHARE_FAR,
@@ -38,6 +40,7 @@ from tsrrt_planner.task_space_rrt import (
     PlanStep,
     SoftDeadline,
     StallRule,
+    _Stop,
     _TsrrtSearch,
     absorb_pushes,
     assignment,
@@ -413,9 +416,9 @@ def test_directgd_runs_more_often_while_the_best_node_is_far_from_every_target(t
     search = tsrrt_search(tset6)
     state, cost = search.directgd(0)
     search.add_target(state, cost)
-    assert search.best_cost > cost + 0.05 * abs(cost)    # the start, 78 % above the bound
+    assert search.lead_cost > cost + 0.05 * abs(cost)    # the start, 78 % above the bound
     assert search.gd_period() == PlannerConfig().gd_period // 4
-    search.best_cost = cost
+    search.lead_cost = cost
     assert search.gd_period() == PlannerConfig().gd_period
 
 
@@ -424,14 +427,14 @@ def test_directgd_starts_once_from_each_best_node_near_the_targets(tset6):
     state, cost = search.directgd(0)
     search.add_target(state, cost)
     search.polish(search.rearrange(0, search.choose_target(tset6.start)))
-    assert search.tree.size > 10 and search.best != 0
+    assert search.tree.size > 10 and search.lead == search.best != 0
     assert search.far_from_targets()    # far: a random node each time, often not the best
-    assert {search.descent_start() for _ in range(20)} != {search.best}
-    search.best_cost = cost             # near: the best node, once
-    assert search.descent_start() == search.best
+    assert {search.descent_start() for _ in range(20)} != {search.lead}
+    search.lead_cost = cost             # near: the best node, once
+    assert search.descent_start() == search.lead
     assert len({search.descent_start() for _ in range(20)}) > 1
-    search.best = 1 if search.best != 1 else 2   # a new best node: from it, once
-    assert search.descent_start() == search.best
+    search.lead = 1 if search.lead != 1 else 2   # a new best node: from it, once
+    assert search.descent_start() == search.lead
 
 
 def test_directgd_backs_off_after_descents_that_end_infeasible(tset6):
@@ -441,7 +444,7 @@ def test_directgd_backs_off_after_descents_that_end_infeasible(tset6):
     scenario = resolve_scenario("tset12")
     tset12 = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
     search = tsrrt_search(tset12, target=tset12.start)
-    search.best_cost = search.targets[0].cost   # near the target: the plain period
+    search.lead_cost = search.targets[0].cost   # near the target: the plain period
     targets = len(search.targets)
     for failures in range(1, GD_FAILURES_TOLERATED + 3):
         search.descend_from(0)
@@ -453,6 +456,46 @@ def test_directgd_backs_off_after_descents_that_end_infeasible(tset6):
     search.gd_failures = 3
     search.descend_from(0)
     assert search.gd_failures == 0 and search.targets
+
+
+def test_a_restart_extends_only_the_root_and_the_new_nodes_and_keeps_the_best(tset6):
+    search = tsrrt_search(tset6, max_nodes=400)
+    state, cost = search.directgd(0)
+    search.add_target(state, cost)
+    search.polish(search.rearrange(0, search.choose_target(tset6.start)))
+    best, best_cost, size = search.best, search.best_cost, search.tree.size
+    assert size > 10 and search.lead == best != 0
+    search.restart()
+    assert search.lead == 0 and search.epoch_start == size
+    assert {search.random_node() for _ in range(20)} == {0}     # nothing grown since
+    assert search.nearest_neighbor(search.tree.states[best]) == 0
+    while search.tree.size < size + 20:
+        search.extend_towards_a_target()
+    parents = search.tree.parent[size:search.tree.size]
+    assert ((parents == 0) | (parents >= size)).all()
+    assert search.lead >= size and search.lead_cost == search.tree.cost[search.lead]
+    assert search.best_cost <= best_cost                       # the plan's best is kept
+    assert search.best == best or search.best >= size
+
+
+@pytest.mark.parametrize("scenario_name, restarts", [("tset12", True), ("tset3", False)])
+def test_a_search_restarts_once_only_while_far_from_the_targets(scenario_name, restarts):
+    """At RESTART_AT of its node budget tset12's search is still more than RESTART_FAR above
+    its best target and starts over from the root; tset3's has reached it and goes on."""
+    scenario = resolve_scenario(scenario_name)
+    tested = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    optimum = lower_bound(tested, starts=2)
+    search = tsrrt_search(tested, max_nodes=600, target=optimum.state)
+    with pytest.raises(_Stop):
+        search.run()
+    assert search.restarted == restarts
+    if restarts:
+        assert search.epoch_start == pytest.approx(RESTART_AT * 600, abs=60)
+        assert search.lead >= search.epoch_start
+        assert search.best_cost <= search.tree.cost[:search.epoch_start].min()
+    else:
+        assert search.epoch_start == 1 and search.lead == search.best
+        assert search.best_cost <= optimum.cost + RESTART_FAR * abs(optimum.cost)
 
 
 @pytest.mark.parametrize("answers_before_cancel", [0, 2])
