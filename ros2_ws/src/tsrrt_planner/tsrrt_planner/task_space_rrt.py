@@ -896,6 +896,7 @@ class _TsrrtSearch(_Search):
                 self.polished.add(self.polish(self.lead))
 
     def add_node(self, parent: int, state: np.ndarray, action: tuple[int, int, float]) -> int:
+        """_Search.add_node, keeping the lead: every node added is in the current epoch."""
         index = super().add_node(parent, state, action)
         if self.tree.cost[index] < self.lead_cost:
             self.lead, self.lead_cost = index, float(self.tree.cost[index])
@@ -919,9 +920,9 @@ class _TsrrtSearch(_Search):
         at RESTART_AT of its budget mostly has an object walled in (platter_3 left in its
         corner by the plates parked around it), and extending that tree rarely gets it out. Of
         96 seeds of 8000 nodes, 57 were more than 15 % above the bound at 3000 nodes and 12 %
-        of them ended within 2 % of
-        the bound, where 21 % of all seeds get within 2 % in a fresh search of 5000 nodes.
-        With the restart 43 of those 96 seeds end within 2 %, against 36 (docs/planner.md)."""
+        of them ended within 2 % of it, where 21 % of all seeds get within 2 % in a fresh
+        search of 5000 nodes. With the restart 43 of the 96 end within 2 %, against 36
+        (docs/planner.md, *A restart*)."""
         self.restarted = True
         self.epoch_start = self.tree.size
         self.lead, self.lead_cost = 0, float(self.tree.cost[0])
