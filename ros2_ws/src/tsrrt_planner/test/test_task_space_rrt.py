@@ -490,7 +490,7 @@ def test_a_search_restarts_once_only_while_far_from_the_targets(scenario_name, r
         search.run()
     assert search.restarted == restarts
     if restarts:
-        assert search.epoch_start == pytest.approx(RESTART_AT * 600, abs=60)
+        assert RESTART_AT * 600 <= search.epoch_start < 600     # at the first round past it
         assert search.lead >= search.epoch_start
         assert search.best_cost <= search.tree.cost[:search.epoch_start].min()
     else:
