@@ -478,6 +478,16 @@ def test_a_restart_extends_only_the_root_and_the_new_nodes_and_keeps_the_best(ts
     assert search.best == best or search.best >= size
 
 
+def test_with_a_node_budget_the_restart_counts_nodes_not_seconds(problem):
+    """A node budget makes a search repeatable; the restart must not look at the clock then."""
+    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
+    timed_out = dict(config=PlannerConfig(), time_budget_s=1e-9, progress=None, cancel=None,
+                     orientation_weights=weights, target=None)
+    both = _TsrrtSearch(problem, "tsrrt", 0, max_nodes=400, **timed_out)
+    assert both.budget_spent() == pytest.approx(1 / 400)
+    assert _TsrrtSearch(problem, "tsrrt", 0, max_nodes=None, **timed_out).budget_spent() > 1
+
+
 @pytest.mark.parametrize("scenario_name, restarts", [("tset12", True), ("tset3", False)])
 def test_a_search_restarts_once_only_while_far_from_the_targets(scenario_name, restarts):
     """At RESTART_AT of its node budget tset12's search is still more than RESTART_FAR above

@@ -903,14 +903,15 @@ class _TsrrtSearch(_Search):
         return index
 
     def budget_spent(self) -> float:
-        """The share of the search's budget spent: of its time (as far from the targets,
-        `search_time_limit`) or of its nodes, whichever is more (0 with neither)."""
-        shares = [0.0]
-        if self.far_search_limit_s is not None:
-            shares.append(self.elapsed() / self.far_search_limit_s)
+        """The share of the search's budget spent: of its nodes when it has a node budget,
+        else of its time as far from the targets (`search_time_limit`), else 0. A node budget
+        makes a search repeatable (the closed loop's `planning_max_nodes`), so with one the
+        restart does not look at the clock."""
         if self.max_nodes is not None:
-            shares.append(self.tree.size / self.max_nodes)
-        return max(shares)
+            return self.tree.size / self.max_nodes
+        if self.far_search_limit_s is not None:
+            return self.elapsed() / self.far_search_limit_s
+        return 0.0
 
     def restart(self) -> None:
         """Start the search over from the root, once, keeping the targets and the tree (the
