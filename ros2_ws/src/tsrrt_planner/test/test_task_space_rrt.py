@@ -7,6 +7,7 @@ import subprocess
 import sys
 import threading
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -60,12 +61,14 @@ from tsrrt_planner.task_space_rrt import (
 )
 
 
-def tsrrt_search(problem: PlanningProblem, max_nodes: int = 100,
-                 target: np.ndarray | None = None) -> _TsrrtSearch:
-    """The tsrrt search itself, for tests of its steps (weights as TASK_SPACE_RRT gives them)."""
+def tsrrt_search(problem: PlanningProblem, max_nodes: int | None = 100,
+                 target: np.ndarray | None = None, time_budget_s: float | None = None,
+                 **options: Any) -> _TsrrtSearch:
+    """The tsrrt search itself, for tests of its steps (weights as TASK_SPACE_RRT gives them;
+    `options` are _TsrrtSearch's other keyword arguments)."""
     weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
-    return _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), None, max_nodes, None, None,
-                        weights, target=target)
+    return _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), time_budget_s, max_nodes, None,
+                        None, weights, target=target, **options)
 
 
 def best_steering_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
@@ -480,12 +483,9 @@ def test_a_restart_extends_only_the_root_and_the_new_nodes_and_keeps_the_best(ts
 
 def test_with_a_node_budget_the_restart_counts_nodes_not_seconds(problem):
     """A node budget makes a search repeatable; the restart must not look at the clock then."""
-    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
-    timed_out = dict(config=PlannerConfig(), time_budget_s=1e-9, progress=None, cancel=None,
-                     orientation_weights=weights, target=None)
-    both = _TsrrtSearch(problem, "tsrrt", 0, max_nodes=400, **timed_out)
+    both = tsrrt_search(problem, max_nodes=400, time_budget_s=1e-9)
     assert both.budget_spent() == pytest.approx(1 / 400)
-    assert _TsrrtSearch(problem, "tsrrt", 0, max_nodes=None, **timed_out).budget_spent() > 1
+    assert tsrrt_search(problem, max_nodes=None, time_budget_s=1e-9).budget_spent() > 1
 
 
 @pytest.mark.parametrize("scenario_name, restarts", [("tset12", True), ("tset3", False)])
@@ -1049,11 +1049,10 @@ def test_the_search_keeps_the_shortening_share_only_near_the_best_target(problem
     within SHORTCUT_NEAR of the best target (FAR_FROM_TARGETS when the plan's length counts);
     above that it searches until SHORTCUT_SHARE_FAR is left."""
     bound = lower_bound(problem, starts=2)
-    weights = np.where(problem.objects.is_disc, 0.0, problem.objects.half_length)
     limits = {}
     for push_cost in (0.0, 1e-3):
-        search = _TsrrtSearch(problem, "tsrrt", 0, PlannerConfig(), 10.0, None, None, None,
-                              weights, push_cost=push_cost, target=bound.state)
+        search = tsrrt_search(problem, max_nodes=None, target=bound.state, time_budget_s=10.0,
+                              push_cost=push_cost)
         for share in (0.5 * SHORTCUT_NEAR, 2.0 * SHORTCUT_NEAR, 2.0 * FAR_FROM_TARGETS):
             search.best_cost = bound.cost + share * abs(bound.cost)
             limits[push_cost, share] = search.search_time_limit() / 10.0
