@@ -922,8 +922,9 @@ class _TsrrtSearch(_Search):
         corner by the plates parked around it), and extending that tree rarely gets it out. Of
         96 seeds of 8000 nodes, 57 were more than 15 % above the bound at 3000 nodes and 12 %
         of them ended within 2 % of it, where 21 % of all seeds get within 2 % in a fresh
-        search of 5000 nodes. With the restart 43 of the 96 end within 2 %, against 36
-        (docs/planner.md, *A restart*)."""
+        search of 5000 nodes. With the restart 43 of the 96 end within 2 %, against 36; on
+        seeds the heuristics were not tuned on the gain is small (96-191 at 6000 nodes: 22
+        against 22; docs/planner.md, *A restart*)."""
         self.restarted = True
         self.epoch_start = self.tree.size
         self.lead, self.lead_cost = 0, float(self.tree.cost[0])
