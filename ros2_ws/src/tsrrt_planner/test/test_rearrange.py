@@ -19,7 +19,7 @@ from tsrrt_planner.rearrange import (
     FIXED_LENGTHS,
     OFF_THE_TABLE,
     STEER_FRACTIONS,
-    PathMemo,
+    RearrangeMemo,
     approach_blockers,
     blockers_of,
     clear_of_way,
@@ -217,7 +217,7 @@ def test_object_path_into_an_occupied_spot_is_not_reached(problem):
     assert object_error(problem, 0, state[0][None], goal, 0.0)[0] <= before
 
 
-def test_path_memo_answers_a_repeated_question_without_searching(problem, monkeypatch):
+def test_memo_answers_a_repeated_path_question_without_searching(problem, monkeypatch):
     """The same arguments are answered from the memo, with the budget tick still run; any
     other state, goal, tolerance, budget or a new refusal is searched."""
     searches = []
@@ -227,7 +227,7 @@ def test_path_memo_answers_a_repeated_question_without_searching(problem, monkey
         return object_path(*args, **kwargs)
 
     monkeypatch.setattr("tsrrt_planner.rearrange.object_path", counted)
-    memo, ticks = PathMemo(problem), []
+    memo, ticks = RearrangeMemo(problem), []
     state, goal = problem.start, problem.start[3] + np.array([0.012, -0.01, 0.0])
     first = memo.object_path(state, 3, goal, 0.0, lambda: ticks.append(1), 0.004)
     again = memo.object_path(state.copy(), 3, goal.copy(), 0.0, lambda: ticks.append(1), 0.004)
@@ -242,18 +242,42 @@ def test_path_memo_answers_a_repeated_question_without_searching(problem, monkey
     assert len(searches) == 5
     scenario = load_scenario("tset6")   # a problem of its own to refuse a push in
     refused = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
-    refusing = PathMemo(refused)
+    refusing = RearrangeMemo(refused)
     refusing.object_path(state, 3, goal, 0.0, lambda: None, 0.004)
     refused.refuse(3, 1, state)
     refusing.object_path(state, 3, goal, 0.0, lambda: None, 0.004)
     assert len(searches) == 7
 
 
-def test_path_memo_keeps_the_last_answers_asked_for(problem, monkeypatch):
+def test_memo_answers_blocker_questions_as_the_functions_do():
+    """approach_blockers and blockers_of from the memo: the functions' answers, asked once
+    per state, target and object; a new refusal asks again."""
+    scenario = load_scenario("tset3")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    state = problem.start
+    target = state.copy()
+    target[0] = state[1]  # plate_1's target is where plate_2 stands
+    memo = RearrangeMemo(problem)
+    for index in range(problem.n):
+        expected = approach_blockers(problem, state, target, index, 0.1)
+        assert memo.approach_blockers(state, target, index, 0.1) == expected
+        assert memo.approach_blockers(state.copy(), target.copy(), index, 0.1) == expected
+        assert memo.blockers_of(state, target, index) == blockers_of(problem, state, target,
+                                                                     index)
+        assert memo.blockers_of(state, target, index) == blockers_of(problem, state, target,
+                                                                     index)
+    assert memo.blockers_of(state, target, 0) == [1]
+    assert len(memo.answers) == 2 * problem.n
+    problem.refuse(0, 1, state)
+    memo.blockers_of(state, target, 0)
+    assert len(memo.answers) == 2 * problem.n + 1
+
+
+def test_memo_keeps_the_last_answers_asked_for(problem, monkeypatch):
     searches = []
     monkeypatch.setattr("tsrrt_planner.rearrange.object_path",
                         lambda *args, **kwargs: searches.append(args[3][0]) or ([], False))
-    memo = PathMemo(problem, size=2)
+    memo = RearrangeMemo(problem, size=2)
     goals = [problem.start[3] + np.array([0.01 * k, 0.0, 0.0]) for k in range(3)]
     for k in (0, 1, 0, 2, 0, 1):   # 1 is the least recently asked when 2 comes
         memo.object_path(problem.start, 3, goals[k], 0.0, lambda: None)

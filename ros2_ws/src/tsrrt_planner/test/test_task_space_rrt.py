@@ -22,7 +22,7 @@ from tsrrt_planner.lower_bound import local_minimum, lower_bound, relative_gap, 
 from tsrrt_planner.model_learning import ModelStore
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.push_rule import learn_all
-from tsrrt_planner.rearrange import PathMemo, object_path
+from tsrrt_planner.rearrange import RearrangeMemo, object_path
 from tsrrt_planner.task_space_rrt import (
     FAR_FROM_TARGETS,
     GD_FAILURES_TOLERATED,
@@ -178,11 +178,11 @@ def test_deterministic_for_a_seed(problem, bound, mode):
     assert runs[0].steps != runs[2].steps or mode == "tsrrt"
 
 
-def test_the_path_memo_leaves_the_search_unchanged(problem, bound, monkeypatch):
-    """REARRANGE's memo of A* answers saves searches only: without it the plan is the same."""
+def test_the_memo_leaves_the_search_unchanged(problem, bound, monkeypatch):
+    """REARRANGE's memo saves searches and checks only: without it the plan is the same."""
     asked, searched = [], []
 
-    class Counting(PathMemo):
+    class Counting(RearrangeMemo):
         def object_path(self, *args, **kwargs):
             asked.append(1)
             return super().object_path(*args, **kwargs)
@@ -191,8 +191,8 @@ def test_the_path_memo_leaves_the_search_unchanged(problem, bound, monkeypatch):
         searched.append(1)
         return object_path(*args, **kwargs)
 
-    def plan(memo: type[PathMemo], **options) -> PlanResult:
-        monkeypatch.setattr("tsrrt_planner.task_space_rrt.PathMemo",
+    def plan(memo: type[RearrangeMemo], **options) -> PlanResult:
+        monkeypatch.setattr("tsrrt_planner.task_space_rrt.RearrangeMemo",
                             lambda problem: memo(problem, **options))
         return TASK_SPACE_RRT(problem, "tsrrt", seed=3, time_budget_s=None, max_nodes=300,
                               target=bound.state)
@@ -200,7 +200,7 @@ def test_the_path_memo_leaves_the_search_unchanged(problem, bound, monkeypatch):
     monkeypatch.setattr("tsrrt_planner.rearrange.object_path", counted)
     remembered = plan(Counting)
     assert len(searched) < len(asked)
-    forgotten = plan(PathMemo, size=0)
+    forgotten = plan(RearrangeMemo, size=0)
     assert remembered.steps == forgotten.steps and remembered.nodes == forgotten.nodes
 
 

@@ -56,7 +56,7 @@ BALL_ROOM = 0.04  # metres around an object the pusher needs (ball, approach, ma
 # 8 seeds)
 CLEARANCE_SLACK = 1e-4
 OFF_THE_TABLE = (1e3, 1e3)  # where approach_blockers puts an object to see a push without it
-PATH_MEMO_SIZE = 1024  # object_path answers a PathMemo keeps (least recently asked go first)
+MEMO_SIZE = 4096  # answers a RearrangeMemo keeps (least recently asked go first)
 
 
 def object_error(problem: PlanningProblem, index: int, poses: np.ndarray, goal: np.ndarray,
@@ -110,37 +110,62 @@ def object_path(problem: PlanningProblem, state: np.ndarray, index: int, goal: n
             for k, length in zip(kinds.tolist(), lengths.tolist(), strict=True)], reached
 
 
-class PathMemo:
-    """object_path's answers within one search, by their arguments. A fifth of a search's A*
-    searches repeat one it made before: REARRANGE runs again from the same best node towards
-    the same target, and tries again the objects that did not get there (20 % of tset12's and
-    22 % of tset6's searches; the A* is half of either search's time). The answer depends only
-    on the arguments and the problem, whose refusals (the one part that may change) are counted
-    in the key. The last PATH_MEMO_SIZE answers asked for are kept: 1024 held 98 % of the
-    repeats in a 3000-node tset12 search."""
+class RearrangeMemo:
+    """REARRANGE's questions that depend only on their arguments and the problem, answered
+    once per search: object_path, approach_blockers and blockers_of. REARRANGE runs again
+    and again from the same best node towards the same target, and asks the same questions
+    until its first parking (parking poses are random): a fifth of a search's A* searches
+    repeat one it made before (20 % of tset12's and 22 % of tset6's; the A* is half of either
+    search's time), and 40 % of tset12's approach_blockers and blockers_of (a tenth of its
+    time). The problem's refusals, the one part of it that may change, are counted in every
+    key. The last `size` answers asked for are kept: 1024 A* answers alone held 98 % of the
+    A* repeats in a 3000-node tset12 search."""
 
-    def __init__(self, problem: PlanningProblem, size: int = PATH_MEMO_SIZE) -> None:
+    def __init__(self, problem: PlanningProblem, size: int = MEMO_SIZE) -> None:
         self.problem, self.size = problem, size
-        self.answers: OrderedDict[tuple, tuple[tuple[Push, ...], bool]] = OrderedDict()
+        self.answers: OrderedDict[tuple, tuple] = OrderedDict()
+
+    def recall(self, key: tuple, answer: Callable[[], tuple]) -> tuple:
+        """The answer kept for `key`, else answer()'s (then kept)."""
+        key = (*key, len(self.problem.refused))
+        known = self.answers.get(key)
+        if known is not None:
+            self.answers.move_to_end(key)
+            return known
+        known = self.answers[key] = answer()
+        if len(self.answers) > self.size:
+            self.answers.popitem(last=False)
+        return known
 
     def object_path(self, state: np.ndarray, index: int, goal: np.ndarray, weight: float,
                     tick: Callable[[], None], tolerance: float = 0.004,
                     max_expansions: int = 48) -> tuple[list[Push], bool]:
-        """object_path(problem, ...), answered from the memo when it was asked before."""
+        """object_path(problem, ...), `tick` run first whether the answer is kept or not."""
+        tick()
         state, goal = np.asarray(state, float), np.asarray(goal, float)
-        key = (state.tobytes(), index, goal.tobytes(), float(weight), tolerance,
-               max_expansions, len(self.problem.refused))
-        known = self.answers.get(key)
-        if known is not None:
-            tick()
-            self.answers.move_to_end(key)
-            return list(known[0]), known[1]
-        path, reached = object_path(self.problem, state, index, goal, weight, tick, tolerance,
-                                    max_expansions)
-        self.answers[key] = (tuple(path), reached)
-        if len(self.answers) > self.size:
-            self.answers.popitem(last=False)
-        return path, reached
+
+        def search() -> tuple:
+            path, reached = object_path(self.problem, state, index, goal, weight, lambda: None,
+                                        tolerance, max_expansions)
+            return tuple(path), reached
+
+        path, reached = self.recall(("path", state.tobytes(), index, goal.tobytes(),
+                                     float(weight), tolerance, max_expansions), search)
+        return list(path), reached
+
+    def approach_blockers(self, state: np.ndarray, target: np.ndarray, index: int,
+                          weight: float) -> tuple[list[int], list[Push]]:
+        """approach_blockers(problem, ...)."""
+        blockers, pushes = self.recall(
+            ("approach", state.tobytes(), target.tobytes(), index, float(weight)),
+            lambda: tuple(map(tuple, approach_blockers(self.problem, state, target, index,
+                                                       weight))))
+        return list(blockers), list(pushes)
+
+    def blockers_of(self, state: np.ndarray, target: np.ndarray, index: int) -> list[int]:
+        """blockers_of(problem, ...)."""
+        return list(self.recall(("blockers", state.tobytes(), target.tobytes(), index),
+                                lambda: tuple(blockers_of(self.problem, state, target, index))))
 
 
 def compile_kernels(problem: PlanningProblem) -> None:

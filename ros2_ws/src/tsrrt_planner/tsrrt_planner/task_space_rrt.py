@@ -43,9 +43,7 @@ from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.rearrange import (
     OFF_THE_TABLE,
-    PathMemo,
-    approach_blockers,
-    blockers_of,
+    RearrangeMemo,
     clear_of_way,
     compile_kernels,
     corridor_blocks,
@@ -867,7 +865,7 @@ class _TsrrtSearch(_Search):
             # (TARGET_INSET), where the arm reaches neither face that could push it back,
             # could not be finished there (`finishing_polish`)
             self.finishing_problem = self.problem.with_retreat_limit(math.inf)
-        self.paths = PathMemo(self.problem)   # REARRANGE's A* searches, asked again and again
+        self.memo = RearrangeMemo(self.problem)   # REARRANGE's questions, asked again and again
 
     def run(self) -> None:
         if self.previous_goal is not None:
@@ -1181,7 +1179,7 @@ class _TsrrtSearch(_Search):
                     continue
                 without = state.copy()
                 without[j, :2] = OFF_THE_TABLE
-                _, reached = self.paths.object_path(without, i, target[j], self.weights[i],
+                _, reached = self.memo.object_path(without, i, target[j], self.weights[i],
                                                     self.check_budget, REARRANGE_TOLERANCE)
                 if reached:
                     target[[i, j]] = target[[j, i]]
@@ -1209,7 +1207,7 @@ class _TsrrtSearch(_Search):
         for expansions, tried in ((SEARCH_EXPANSIONS, candidates[:MAX_CANDIDATES]),
                                   (LAST_RESORT_EXPANSIONS, candidates[:1])):
             for i in tried:
-                path, reached = self.paths.object_path(
+                path, reached = self.memo.object_path(
                     self.tree.states[node], i, target[i], self.weights[i], self.check_budget,
                     REARRANGE_TOLERANCE, max_expansions=expansions)
                 if reached:
@@ -1239,11 +1237,11 @@ class _TsrrtSearch(_Search):
         candidates = []   # (blocked, object to park, pushes of `blocked` its parking must free)
         for blocked in order[:3]:
             # first those that stand where the ball must be for any push towards the target
-            at_approach, freed = approach_blockers(problem, state, target, blocked,
-                                                   self.weights[blocked])
+            at_approach, freed = self.memo.approach_blockers(state, target, blocked,
+                                                             self.weights[blocked])
             candidates += [(blocked, j, freed) for j in at_approach[:2]]
-            candidates += [(blocked, j, []) for j in blockers_of(problem, state, target,
-                                                                 blocked)[:2]]
+            candidates += [(blocked, j, []) for j in self.memo.blockers_of(state, target,
+                                                                           blocked)[:2]]
         candidates = [candidate for candidate in candidates
                       if parked.get(candidate[1], 0) < self.max_parkings]
         candidates.sort(key=lambda candidate: candidate[1] not in pending)
@@ -1259,7 +1257,7 @@ class _TsrrtSearch(_Search):
                        if frees_a_push(problem, state, j, pose, freed))
             for pose in itertools.islice(freeing, 3):
                 searches += 1
-                path, reached = self.paths.object_path(state, j, pose, self.weights[j],
+                path, reached = self.memo.object_path(state, j, pose, self.weights[j],
                                                        self.check_budget, PARKING_TOLERANCE)
                 if path and not reached:
                     # short of the parking pose may still be out of the way
