@@ -41,6 +41,7 @@ from tsrrt_planner.task_space_rrt import (
     PlanStep,
     SoftDeadline,
     StallRule,
+    _Search,
     _Stop,
     _TsrrtSearch,
     absorb_pushes,
@@ -176,6 +177,24 @@ def test_deterministic_for_a_seed(problem, bound, mode):
     assert runs[0].steps == runs[1].steps
     np.testing.assert_array_equal(runs[0].states, runs[1].states)
     assert runs[0].steps != runs[2].steps or mode == "tsrrt"
+
+
+def test_the_nearest_node_is_rho_s_argmin_over_the_root_and_the_epoch(problem):
+    """The compiled nearest neighbour answers as numpy's argmin of rho: over the whole tree,
+    and after a restart over the root and the nodes added since."""
+    search = tsrrt_search(problem)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        search.tree.add(0, problem.start + rng.normal(0.0, 0.05, problem.start.shape),
+                        (0, 1, 0.01), 0.0)
+    for epoch_start in (1, 25):
+        search.epoch_start = epoch_start
+        nodes = np.r_[0, epoch_start:search.tree.size]
+        for _ in range(20):
+            sample = problem.start + rng.normal(0.0, 0.05, problem.start.shape)
+            expected = nodes[np.argmin(search.rho(search.tree.states[nodes], sample))]
+            assert search.nearest_neighbor(sample) == expected
+    assert _Search.nearest_neighbor(search, search.tree.states[10]) == 10
 
 
 def test_the_memo_leaves_the_search_unchanged(problem, bound, monkeypatch):

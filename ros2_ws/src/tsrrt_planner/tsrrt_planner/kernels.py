@@ -14,7 +14,7 @@ one from the cache. For the same reason the constants the kernels use live here.
 
 Sections: footprint and ball-path collision tests; reach lookups on a grid; push geometry and the
 whole push check; REARRANGE's A* over one object's pose; the objective's terms; matching
-interchangeable objects to target slots.
+interchangeable objects to target slots; the tree's nearest neighbour.
 """
 
 from __future__ import annotations
@@ -1179,3 +1179,28 @@ def nearest_assignments(state: np.ndarray, targets: np.ndarray, members: np.ndar
             for a in range(len(group)):
                 orders[t, group[a]] = group[columns[a]]
     return orders
+
+
+# ---------------- the tree's nearest neighbour (task_space_rrt.py)
+@kernel
+def nearest_under_rho(states: np.ndarray, first: int, count: int, sample: np.ndarray,
+                      weights: np.ndarray, period: np.ndarray) -> int:
+    """The node nearest `sample` (n, 3) under Eq. 11's rho among node 0 and nodes first to
+    count - 1 of `states` (m, n, 3), the first of equals: rho over the whole tree in numpy
+    built five (m, n) temporaries, 1.5 ms a call in a 6000-node tset12 tree."""
+    best, nearest = np.inf, 0
+    n = sample.shape[0]
+    for node in range(first - 1, count):
+        row = 0 if node < first else node
+        total = 0.0
+        for i in range(n):
+            dx = states[row, i, 0] - sample[i, 0]
+            dy = states[row, i, 1] - sample[i, 1]
+            turn = 0.0
+            if period[i] > 0:
+                turn = ((states[row, i, 2] - sample[i, 2] + period[i] / 2) % period[i]
+                        - period[i] / 2) * weights[i]
+            total += dx * dx + dy * dy + turn * turn
+        if total < best:
+            best, nearest = total, row
+    return nearest

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tsrrt_planner.errors import PlannerError
-from tsrrt_planner.kernels import nearest_assignments, steer_candidates
+from tsrrt_planner.kernels import nearest_assignments, nearest_under_rho, steer_candidates
 from tsrrt_planner.lower_bound import local_minimum, random_state, relative_gap
 from tsrrt_planner.problem import PlanningProblem, shortest_turn
 from tsrrt_planner.rearrange import (
@@ -386,7 +386,13 @@ class _Search:
         return np.sqrt((delta[..., :2] ** 2).sum(axis=(-1, -2)) + (angle**2).sum(axis=-1))
 
     def nearest_neighbor(self, sample: np.ndarray) -> int:
-        return int(np.argmin(self.rho(self.tree.states[: self.tree.size], sample)))
+        return self.nearest_from(1, sample)
+
+    def nearest_from(self, first: int, sample: np.ndarray) -> int:
+        """The node nearest `sample` under rho among the root and nodes `first` onwards."""
+        return nearest_under_rho(self.tree.states, first, self.tree.size,
+                                 np.ascontiguousarray(sample, float), self.weights,
+                                 self.problem.angle_period)
 
     def random_config(self) -> np.ndarray:
         return random_state(self.problem, self.rng)
@@ -935,8 +941,7 @@ class _TsrrtSearch(_Search):
 
     def nearest_neighbor(self, sample: np.ndarray) -> int:
         """The node of the current epoch (or the root) nearest `sample` under rho."""
-        nodes = np.r_[0, self.epoch_start:self.tree.size]
-        return int(nodes[np.argmin(self.rho(self.tree.states[nodes], sample))])
+        return self.nearest_from(self.epoch_start, sample)
 
     def descend_from(self, node: int) -> None:
         """DIRECTGD from `node`: its minimum becomes a target; a descent that ends infeasible
