@@ -1185,7 +1185,7 @@ class _TsrrtSearch(_Search):
                 without = state.copy()
                 without[j, :2] = OFF_THE_TABLE
                 _, reached = self.memo.object_path(without, i, target[j], self.weights[i],
-                                                    self.check_budget, REARRANGE_TOLERANCE)
+                                                   self.check_budget, REARRANGE_TOLERANCE)
                 if reached:
                     target[[i, j]] = target[[j, i]]
                     arrangement[[i, j]] = arrangement[[j, i]]
@@ -1263,7 +1263,7 @@ class _TsrrtSearch(_Search):
             for pose in itertools.islice(freeing, 3):
                 searches += 1
                 path, reached = self.memo.object_path(state, j, pose, self.weights[j],
-                                                       self.check_budget, PARKING_TOLERANCE)
+                                                      self.check_budget, PARKING_TOLERANCE)
                 if path and not reached:
                     # short of the parking pose may still be out of the way
                     end = simulate_from(problem, state, path)[j]
