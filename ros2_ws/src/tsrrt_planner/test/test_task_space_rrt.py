@@ -1033,19 +1033,20 @@ def test_a_warm_start_ends_at_its_lowest_cost(problem):
 KERNELS_AFTER_A_PLAN = """
 import numba
 from tsrrt_common.scenario import load_scenario
-from tsrrt_planner import collision, problem, reachability, rearrange
+from tsrrt_planner import collision, objectives, problem, reachability, rearrange, task_space_rrt
 from tsrrt_planner.push_rule import learn_all
-from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT
+from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, compile_search_kernels
 
 def signatures():
     return {f"{module.__name__}.{name}": len(kernel.signatures)
-            for module in (collision, problem, reachability, rearrange)
+            for module in (collision, objectives, problem, reachability, rearrange,
+                           task_space_rrt)
             for name, kernel in vars(module).items()
             if isinstance(kernel, numba.core.registry.CPUDispatcher)}
 
 scenario = load_scenario("tset3")
 planning = problem.PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
-rearrange.compile_kernels(planning)
+compile_search_kernels(planning)
 before = signatures()
 TASK_SPACE_RRT(planning, "tsrrt", 0, max_nodes=60, time_budget_s=None)
 print({name: (before[name], count) for name, count in signatures().items()

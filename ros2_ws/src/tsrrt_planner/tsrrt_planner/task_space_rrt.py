@@ -1348,12 +1348,15 @@ def steer_object(problem: PlanningProblem, state: np.ndarray, target: np.ndarray
 
 
 def compile_search_kernels(problem: PlanningProblem) -> None:
-    """Compile (or load from numba's cache) the kernels of REARRANGE's A*, of STEER and of
-    choose_target's matching, so that none takes a first search's time; scripts/setup.sh runs
-    it after each build (compile_kernels.py)."""
+    """Compile (or load from numba's cache) the kernels of REARRANGE's A*, of STEER, of
+    choose_target's matching and of the nearest neighbour, so that none takes a first search's
+    time; scripts/setup.sh runs it after each build (compile_kernels.py)."""
     compile_kernels(problem)
-    steer_push(problem, problem.start, problem.start, np.ones(problem.n))
+    for only_object in (None, 0):   # the candidates of every object and of one (steer_object)
+        steer_push(problem, problem.start, problem.start, np.ones(problem.n), only_object)
     assignment([np.arange(min(2, problem.n))], problem.start[None], problem.start)
+    nearest_under_rho(problem.start[None], 1, 1, problem.start, np.ones(problem.n),
+                      problem.angle_period)
 
 
 def steer_push(problem: PlanningProblem, state: np.ndarray, target: np.ndarray,
