@@ -118,8 +118,9 @@ class RearrangeMemo:
     repeat one it made before (20 % of tset12's and 22 % of tset6's; the A* is half of either
     search's time), and 40 % of tset12's approach_blockers and blockers_of (an eighth of a
     3000-node search's time; the memo saves a third of it). The problem's refusals, the one
-    part of it that may change, are counted in every key. The last `size` answers asked for are kept:
-    1024 A* answers alone held 98 % of the A* repeats in a 3000-node tset12 search."""
+    part of it that may change, are counted in every key. The last `size` answers asked for
+    are kept: 1024 A* answers alone held 98 % of the A* repeats in a 3000-node tset12
+    search."""
 
     def __init__(self, problem: PlanningProblem, size: int = MEMO_SIZE) -> None:
         self.problem, self.size = problem, size
