@@ -206,8 +206,10 @@ class PlanningProblem:
                 f"{scenario.name}: the start state violates the constraints (footprints "
                 f"{1000 * max(overlap - margin, 0.0):.1f} mm into each other, "
                 f"{1000 * overhang:.1f} mm past a table edge)")
-        self.action_objects, self.action_primitives = np.nonzero(self.available)
-        self.action_primitives = self.action_primitives + 1
+        # contiguous copies: np.nonzero's are strided views, and a kernel handed both a view and
+        # a contiguous array (a slice of it) compiles once for each layout
+        objects, primitives = np.nonzero(self.available)
+        self.action_objects, self.action_primitives = np.ascontiguousarray(objects), primitives + 1
         # each object's own primitives, asked for by every A* search (rearrange.object_path)
         self.primitives_of = tuple(self.action_primitives[self.action_objects == i]
                                    for i in range(self.n))

@@ -1352,8 +1352,7 @@ def compile_search_kernels(problem: PlanningProblem) -> None:
     choose_target's matching and of the nearest neighbour, so that none takes a first search's
     time; scripts/setup.sh runs it after each build (compile_kernels.py)."""
     compile_kernels(problem)
-    for only_object in (None, 0):   # the candidates of every object and of one (steer_object)
-        steer_push(problem, problem.start, problem.start, np.ones(problem.n), only_object)
+    steer_push(problem, problem.start, problem.start, np.ones(problem.n))
     assignment([np.arange(min(2, problem.n))], problem.start[None], problem.start)
     nearest_under_rho(problem.start[None], 1, 1, problem.start, np.ones(problem.n),
                       problem.angle_period)
