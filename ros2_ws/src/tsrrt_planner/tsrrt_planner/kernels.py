@@ -1196,10 +1196,7 @@ def nearest_under_rho(states: np.ndarray, first: int, count: int, sample: np.nda
         for i in range(n):
             dx = states[row, i, 0] - sample[i, 0]
             dy = states[row, i, 1] - sample[i, 1]
-            turn = 0.0
-            if period[i] > 0:
-                turn = ((states[row, i, 2] - sample[i, 2] + period[i] / 2) % period[i]
-                        - period[i] / 2) * weights[i]
+            turn = _turn_error(states[row, i, 2] - sample[i, 2], period[i]) * weights[i]
             total += dx * dx + dy * dy + turn * turn
         if total < best:
             best, nearest = total, row
