@@ -376,6 +376,27 @@ def test_an_object_where_the_ball_must_be_is_named_with_the_push_it_blocks():
     assert approach_blockers(problem, away, target, 0, 0.0) == ([], [])
 
 
+def test_a_static_obstacle_is_never_named_as_a_blocker():
+    """The eraser just beyond the hole punch, its target on the other side: no push of nominal
+    length towards it is valid, and nothing that could be moved is in the way (the obstacle
+    cannot be). The blocker question had taken the obstacle's row of the shapes for a movable
+    object's and raised an IndexError."""
+    scenario = load_scenario("obstacle")
+    problem = PlanningProblem(scenario, learn_all(scenario.objects, seed=0))
+    state = np.array([[0.42, 0.13, 0.0]])
+    target = np.array([[0.42, -0.16, 0.0]])
+    assert problem.state_valid(state)
+    primitives = problem.primitives_of[0]
+    objects = np.zeros(len(primitives), np.int64)
+    lengths = np.full(len(primitives), problem.nominal_length)
+    after = problem.predict(state, objects, primitives, lengths)
+    closer = object_error(problem, 0, after, target[0], 0.0) < pose_error(
+        problem, 0, state[0], target[0], 0.0)
+    assert closer.any()
+    assert not problem.pushes_valid(state, objects, primitives, lengths)[closer].any()
+    assert approach_blockers(problem, state, target, 0, 0.0) == ([], [])
+
+
 def test_pushes_without_each_object_agree_with_one_state_at_a_time():
     """pushes_valid_without (one compiled pass) against pushes_valid on each state with one
     object moved away, a refusal recorded in one of those states included."""

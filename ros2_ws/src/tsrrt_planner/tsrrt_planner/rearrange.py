@@ -281,8 +281,9 @@ def approach_blockers(problem: PlanningProblem, state: np.ndarray, target: np.nd
         return [], []
     blockers, freed = [], np.zeros(len(primitives), bool)
     # only an object close enough to touch it, the ball or the ball's path can block one of
-    # these pushes; one taken off the table elsewhere can only make the face rule stricter
-    radius = problem.checker.shapes.bounding_radius
+    # these pushes; one taken off the table elsewhere can only make the face rule stricter.
+    # Static obstacles (the shapes' rows from n on) never move, so they are never named.
+    radius = problem.checker.shapes.bounding_radius[:problem.n]
     within = radius[index] + radius + float(lengths.max()) + 2 * BALL_ROOM
     near = np.nonzero(np.linalg.norm(state[:, :2] - state[index, :2], axis=1) < within)[0]
     near = near[near != index]
