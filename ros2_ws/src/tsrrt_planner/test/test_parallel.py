@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tsrrt_planner.errors import PlannerError
-from tsrrt_planner.parallel import SEED_STRIDE, plan_in_parallel
+from tsrrt_planner.parallel import SEED_STRIDE, WorkerTraceback, plan_in_parallel
 from tsrrt_planner.task_space_rrt import TASK_SPACE_RRT, simulate
 
 
@@ -71,6 +71,9 @@ def test_bad_worker_counts_are_refused(problem, workers):
         plan_in_parallel(problem, workers, "tsrrt", 0, time_budget_s=1.0)
 
 
-def test_a_workers_error_is_raised_in_the_caller(problem):
-    with pytest.raises(PlannerError, match="time budget must be > 0 s"):
+def test_a_workers_error_is_raised_in_the_caller_with_the_workers_traceback(problem):
+    with pytest.raises(PlannerError, match="time budget must be > 0 s") as raised:
         plan_in_parallel(problem, 2, "paper", 0, time_budget_s=-1.0)
+    cause = raised.value.__cause__
+    assert isinstance(cause, WorkerTraceback)
+    assert 'in TASK_SPACE_RRT' in str(cause) and 'raise PlannerError' in str(cause)

@@ -22,6 +22,7 @@ import multiprocessing
 import os
 import threading
 import time
+import traceback
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -42,6 +43,14 @@ POLL_S = 0.05               # how often the coordinator looks at the caller's ca
 JOIN_TIMEOUT_S = 5.0        # a worker that has not exited this long after its result is killed
 
 
+class WorkerTraceback(Exception):
+    """Where a worker's error was raised, as the worker formatted it: the cause of the error
+    plan_in_parallel raises again, so that a log of it shows the line that failed."""
+
+    def __str__(self) -> str:
+        return f"\n\nin the planning worker:\n{self.args[0]}"
+
+
 def plan_in_parallel(problem: PlanningProblem, workers: int, mode: str = "tsrrt",
                      seed: int = 0, progress: Progress | None = None,
                      cancel: Cancel | None = None, **options: Any) -> PlanResult:
@@ -52,7 +61,8 @@ def plan_in_parallel(problem: PlanningProblem, workers: int, mode: str = "tsrrt"
     this process. The result's `nodes` and trace count every worker's nodes (each as of its
     last report), its trace is the best cost over all workers, its `elapsed_s` the wall time
     of the whole call and its `seed` the call's. Progress reports the same, from this process.
-    A worker's error is raised here, after the others have been stopped.
+    A worker's error is raised here, after the others have been stopped, with the worker's
+    traceback as its cause (WorkerTraceback): the error's own traceback ends at this function.
     """
     if not isinstance(workers, int) or workers < 1:
         raise PlannerError(f"workers must be an integer >= 1, got {workers!r}")
@@ -91,7 +101,8 @@ def plan_in_parallel(problem: PlanningProblem, workers: int, mode: str = "tsrrt"
                         f"planning worker {worker} exited without a result (exit code "
                         f"{processes[worker].exitcode})") from None
                 if kind == "error":
-                    raise payload
+                    error, trace = payload
+                    raise error from WorkerTraceback(trace)
                 if kind == "result":
                     results[worker] = payload
                     del channels[channel]
@@ -130,7 +141,7 @@ def _search(channel: Connection, stop: Any, problem: PlanningProblem, mode: str,
         channel.send(("result", (began, result)))
         code = 0
     except Exception as error:   # raised again by the coordinator
-        channel.send(("error", error))
+        channel.send(("error", (error, traceback.format_exc())))
     finally:
         channel.close()
         os._exit(code)
