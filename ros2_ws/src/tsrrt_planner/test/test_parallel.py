@@ -76,4 +76,4 @@ def test_a_workers_error_is_raised_in_the_caller_with_the_workers_traceback(prob
         plan_in_parallel(problem, 2, "paper", 0, time_budget_s=-1.0)
     cause = raised.value.__cause__
     assert isinstance(cause, WorkerTraceback)
-    assert 'in TASK_SPACE_RRT' in str(cause) and 'raise PlannerError' in str(cause)
+    assert "in TASK_SPACE_RRT" in str(cause) and "raise PlannerError" in str(cause)
